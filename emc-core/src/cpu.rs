@@ -1,0 +1,132 @@
+//! What this CPU can do and how fast, read once with CPUID (works in `no_std`).
+//! "BMI2 present" does not mean "use pdep": AMD and Hygon before family 0x19 (Excavator, Zen 1,
+//! Zen+, Zen 2, Dhyana) run `pdep`/`pext` in microcode, 20 to 290 cycles each.
+
+/// The CPU facts dispatch decides on.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct CpuInfo {
+    /// Vendor string (`AuthenticAMD`, `GenuineIntel`, …); empty off x86.
+    pub vendor: [u8; 12],
+    /// Display family (base + extended when base is 0xF).
+    pub family: u32,
+    /// Display model.
+    pub model: u32,
+    /// BMI2 (`pdep`/`pext`) present.
+    pub bmi2: bool,
+    /// AVX2 present and enabled by the OS (XCR0 saves YMM state).
+    pub avx2: bool,
+}
+
+impl CpuInfo {
+    /// The vendor as text.
+    pub fn vendor_str(&self) -> &str {
+        core::str::from_utf8(&self.vendor)
+            .unwrap_or("unknown")
+            .trim_end_matches('\0')
+    }
+
+    /// True when `pdep` is a fast (single-µop) instruction here.
+    pub fn fast_pdep(&self) -> bool {
+        if !self.bmi2 {
+            return false;
+        }
+        let amd_like = &self.vendor == b"AuthenticAMD" || &self.vendor == b"HygonGenuine";
+        !(amd_like && self.family < 0x19)
+    }
+
+    /// One line saying whether pdep is used and why.
+    pub fn pdep_reason(&self) -> &'static str {
+        if !self.bmi2 {
+            "no BMI2 on this CPU"
+        } else if self.fast_pdep() {
+            "BMI2 present and pdep is a fast single instruction on this CPU"
+        } else {
+            "BMI2 present but pdep is microcoded on AMD/Hygon before family 0x19 (20-290 cycles)"
+        }
+    }
+}
+
+/// Read the CPU once (cheap: a handful of CPUID instructions; callers cache the result).
+#[cfg(target_arch = "x86_64")]
+pub fn detect() -> CpuInfo {
+    use core::arch::x86_64::{__cpuid, __cpuid_count};
+    let l0 = __cpuid(0);
+    let mut vendor = [0u8; 12];
+    vendor[0..4].copy_from_slice(&l0.ebx.to_le_bytes());
+    vendor[4..8].copy_from_slice(&l0.edx.to_le_bytes());
+    vendor[8..12].copy_from_slice(&l0.ecx.to_le_bytes());
+    let max_leaf = l0.eax;
+    let l1 = __cpuid(1);
+    let base_family = (l1.eax >> 8) & 0xF;
+    let ext_family = (l1.eax >> 20) & 0xFF;
+    let family = if base_family == 0xF {
+        base_family + ext_family
+    } else {
+        base_family
+    };
+    let base_model = (l1.eax >> 4) & 0xF;
+    let ext_model = (l1.eax >> 16) & 0xF;
+    let model = if base_family == 0x6 || base_family == 0xF {
+        (ext_model << 4) | base_model
+    } else {
+        base_model
+    };
+    let (bmi2, avx2_bit) = if max_leaf >= 7 {
+        let l7 = __cpuid_count(7, 0);
+        ((l7.ebx >> 8) & 1 == 1, (l7.ebx >> 5) & 1 == 1)
+    } else {
+        (false, false)
+    };
+    let osxsave = (l1.ecx >> 27) & 1 == 1;
+    let avx = (l1.ecx >> 28) & 1 == 1;
+    let avx2 = avx2_bit && avx && osxsave && os_saves_ymm();
+    CpuInfo {
+        vendor,
+        family,
+        model,
+        bmi2,
+        avx2,
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+fn os_saves_ymm() -> bool {
+    #[target_feature(enable = "xsave")]
+    unsafe fn xcr0() -> u64 {
+        // SAFETY: the caller checked OSXSAVE, so XGETBV with register 0 is defined.
+        unsafe { core::arch::x86_64::_xgetbv(0) }
+    }
+    // SAFETY: only called after CPUID reported OSXSAVE, which implies XGETBV is usable.
+    let x = unsafe { xcr0() };
+    x & 0b110 == 0b110
+}
+
+/// Off x86_64 there is no `pdep` and no AVX2.
+#[cfg(not(target_arch = "x86_64"))]
+pub fn detect() -> CpuInfo {
+    CpuInfo {
+        vendor: [0; 12],
+        family: 0,
+        model: 0,
+        bmi2: false,
+        avx2: false,
+    }
+}
+
+/// BMI2 present (correctness only, not speed).
+#[inline]
+pub fn has_bmi2() -> bool {
+    detect().bmi2
+}
+
+/// BMI2 present and fast.
+#[inline]
+pub fn fast_pdep() -> bool {
+    detect().fast_pdep()
+}
+
+/// AVX2 present and enabled by the OS.
+#[inline]
+pub fn has_avx2() -> bool {
+    detect().avx2
+}

@@ -1,0 +1,135 @@
+//! Bit expansion backends: one module each, the same two methods (`expand`, `compact`).
+//! [`Expander`] holds whichever one dispatch picked for an encoder, decided once.
+//!
+//! | backend | patterns | cost on a microcoded-pdep CPU (Zen 1) |
+//! |---|---|---|
+//! | [`reference`] | any | a bit loop: the oracle |
+//! | [`magic`] | regular (`(xyz)^n`, `(a0 a1 a2 s)^16`, …) | shifts and masks |
+//! | [`table`] | any | one load per byte of each channel |
+//! | `pdep` (x86_64) | any | one instruction per channel where pdep is fast |
+
+use core::fmt;
+use core::str::FromStr;
+
+use crate::error::Error;
+use crate::layout::Layout;
+
+pub mod magic;
+#[cfg(target_arch = "x86_64")]
+pub mod pdep;
+pub mod reference;
+pub mod table;
+
+/// Names of the expansion backends (CLI, CSV and docs use the lower-case names).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Backend {
+    /// The bit loop (oracle).
+    Reference,
+    /// Shift/mask spreads for regular patterns.
+    Magic,
+    /// Per-byte tables for any pattern.
+    Table,
+    /// BMI2 `pdep`/`pext` (x86_64).
+    Pdep,
+}
+
+impl Backend {
+    /// All backends, in the order tables list them.
+    pub const ALL: [Backend; 4] = [
+        Backend::Reference,
+        Backend::Magic,
+        Backend::Table,
+        Backend::Pdep,
+    ];
+
+    /// The lower-case name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Backend::Reference => "reference",
+            Backend::Magic => "magic",
+            Backend::Table => "table",
+            Backend::Pdep => "pdep",
+        }
+    }
+}
+
+impl fmt::Display for Backend {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Backend {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self, Error> {
+        Backend::ALL
+            .into_iter()
+            .find(|b| b.name() == s)
+            .ok_or(Error::BackendUnavailable(Backend::Reference))
+    }
+}
+
+/// One built backend.
+#[derive(Clone, Debug)]
+pub enum Expander {
+    /// See [`reference::Reference`].
+    Reference(reference::Reference),
+    /// See [`magic::Magic`].
+    Magic(magic::Magic),
+    /// See [`table::Table`].
+    Table(table::Table),
+    /// See [`pdep::Pdep`].
+    #[cfg(target_arch = "x86_64")]
+    Pdep(pdep::Pdep),
+}
+
+impl Expander {
+    /// Build a named backend for a layout, or `None` when it cannot serve it here (magic on an
+    /// irregular pattern, pdep without BMI2 or off x86_64).
+    pub fn new(backend: Backend, layout: &Layout) -> Option<Expander> {
+        match backend {
+            Backend::Reference => Some(Expander::Reference(reference::Reference::new(layout))),
+            Backend::Magic => magic::Magic::new(layout).map(Expander::Magic),
+            Backend::Table => Some(Expander::Table(table::Table::new(layout))),
+            #[cfg(target_arch = "x86_64")]
+            Backend::Pdep => pdep::Pdep::new(layout).map(Expander::Pdep),
+            #[cfg(not(target_arch = "x86_64"))]
+            Backend::Pdep => None,
+        }
+    }
+
+    /// Which backend this is.
+    pub fn backend(&self) -> Backend {
+        match self {
+            Expander::Reference(_) => Backend::Reference,
+            Expander::Magic(_) => Backend::Magic,
+            Expander::Table(_) => Backend::Table,
+            #[cfg(target_arch = "x86_64")]
+            Expander::Pdep(_) => Backend::Pdep,
+        }
+    }
+
+    /// Interleave channel values (x, y, z, s) into a right-aligned code.
+    #[inline]
+    pub fn expand(&self, q: [u64; 4]) -> u64 {
+        match self {
+            Expander::Reference(e) => e.expand(q),
+            Expander::Magic(e) => e.expand(q),
+            Expander::Table(e) => e.expand(q),
+            #[cfg(target_arch = "x86_64")]
+            Expander::Pdep(e) => e.expand(q),
+        }
+    }
+
+    /// Split a code into channel values.
+    #[inline]
+    pub fn compact(&self, code: u64) -> [u64; 4] {
+        match self {
+            Expander::Reference(e) => e.compact(code),
+            Expander::Magic(e) => e.compact(code),
+            Expander::Table(e) => e.compact(code),
+            #[cfg(target_arch = "x86_64")]
+            Expander::Pdep(e) => e.compact(code),
+        }
+    }
+}

@@ -1,0 +1,2 @@
+//! The `emc` command-line tool.
+fn main() {}
