@@ -1,4 +1,7 @@
 //! # emc-cpu: scenes, parallel encoding and the LBVH pipeline
 //!
 //! The CPU side of emc: scene loading and built-in scenes, parallel batch encoding on top of
-//! emc-core, and (in later modules) sorting, LBVH builders and tracing.
+//! emc-core, radix sorting, LBVH builders, SAH metrics and the verbs of the `emc` binary.
+
+pub mod bvh;
+pub mod cli;

@@ -1,2 +1,22 @@
-//! The `emc` command-line tool.
-fn main() {}
+//! The `emc` command-line tool: parses arguments and hands each verb to `emc_cpu::cli`.
+
+use clap::{Parser, Subcommand};
+
+#[derive(Parser, Debug)]
+#[command(name = "emc", version, about = "Extended Morton Codes: layouts, LBVH builds, reports")]
+struct Cli {
+    #[command(subcommand)]
+    verb: Verb,
+}
+
+#[derive(Subcommand, Debug)]
+enum Verb {}
+
+fn main() {
+    let cli = Cli::parse();
+    let result: anyhow::Result<()> = match cli.verb {};
+    if let Err(e) = result {
+        eprintln!("emc: {e:#}");
+        std::process::exit(1);
+    }
+}

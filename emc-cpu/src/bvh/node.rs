@@ -1,0 +1,94 @@
+//! The flat BVH2 node layout every builder writes and every consumer reads: 32 bytes,
+//! `#[repr(C)]`, two constructors, named accessors (no bit fiddling outside this file).
+
+use emc_core::Aabb;
+
+/// Top bit of `b`: set for a leaf.
+const LEAF_BIT: u32 = 1 << 31;
+
+/// One node of a binary BVH.
+///
+/// ```text
+///   bounds.min (12 B) | bounds.max (12 B) | a (4 B)           | b (4 B)
+///   inner:                                  left child index  | right child index
+///   leaf:                                   first prim slot   | LEAF_BIT | prim count
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+#[repr(C)]
+pub struct Node {
+    /// Bounds of everything below.
+    pub bounds: Aabb,
+    a: u32,
+    b: u32,
+}
+
+const _: () = assert!(core::mem::size_of::<Node>() == 32);
+
+impl Node {
+    /// An inner node with two children (indices into the node array).
+    #[inline]
+    pub fn inner(bounds: Aabb, left: u32, right: u32) -> Node {
+        debug_assert!(right & LEAF_BIT == 0);
+        Node {
+            bounds,
+            a: left,
+            b: right,
+        }
+    }
+
+    /// A leaf holding `count` (≥ 1) primitives at `prim_indices[first..first + count]`.
+    #[inline]
+    pub fn leaf(bounds: Aabb, first: u32, count: u32) -> Node {
+        debug_assert!(count >= 1 && count & LEAF_BIT == 0);
+        Node {
+            bounds,
+            a: first,
+            b: LEAF_BIT | count,
+        }
+    }
+
+    /// True for a leaf.
+    #[inline]
+    pub fn is_leaf(&self) -> bool {
+        self.b & LEAF_BIT != 0
+    }
+
+    /// Left child (inner nodes only).
+    #[inline]
+    pub fn left(&self) -> u32 {
+        self.a
+    }
+
+    /// Right child (inner nodes only).
+    #[inline]
+    pub fn right(&self) -> u32 {
+        self.b
+    }
+
+    /// First primitive slot (leaves only).
+    #[inline]
+    pub fn first(&self) -> u32 {
+        self.a
+    }
+
+    /// Number of primitives (leaves only; 0 for inner nodes).
+    #[inline]
+    pub fn count(&self) -> u32 {
+        if self.is_leaf() {
+            self.b & !LEAF_BIT
+        } else {
+            0
+        }
+    }
+}
+
+/// A binary BVH: nodes, the primitive order the leaves index into, and the root.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Bvh {
+    /// All nodes; children may sit anywhere in the array.
+    pub nodes: Vec<Node>,
+    /// Primitive ids in leaf order: leaf `l` holds `prim_indices[l.first()..l.first()+l.count()]`.
+    pub prim_indices: Vec<u32>,
+    /// Index of the root node.
+    pub root: u32,
+}

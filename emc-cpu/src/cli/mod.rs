@@ -1,0 +1,1 @@
+//! The verbs of the `emc` binary, one module each; `main.rs` only parses and dispatches.
