@@ -2,5 +2,9 @@
 //! validation and cost metrics.
 
 pub mod node;
+pub mod sah;
+pub mod validate;
 
 pub use node::{Bvh, Node};
+pub use sah::{sah_collapsed, sah_cost, sah_headline, SahConstants};
+pub use validate::{BvhStats, ValidateError};
