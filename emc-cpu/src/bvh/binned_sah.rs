@@ -1,0 +1,756 @@
+//! `binned-sah`: the top-down binned surface-area-heuristic builder, the quality reference the
+//! LBVH builders are measured against. Centroid binning (32 bins per axis by default), one
+//! primitive per leaf, parallel with rayon, and bit-identical output for any thread count.
+//!
+//! Each node bins its primitives' centroids along all three axes inside the node's centroid
+//! box, sweeps the bins for the split with the lowest `A_L·N_L + A_R·N_R` (areas of the exact
+//! unions of the bins' primitive boxes, in `f64`) and partitions its index range stably. When
+//! every centroid of a node is the same point, the range is halved instead, so the depth stays
+//! bounded even for a million identical primitives. Large nodes bin and partition in parallel
+//! over fixed-size chunks; subtrees run in parallel through `rayon::join` down to a bounded
+//! join depth and finish on an explicit work stack, so no input can exhaust the call stack.
+
+use emc_core::Aabb;
+use glam::Vec3A;
+use rayon::prelude::*;
+use thiserror::Error;
+
+use super::node::{Bvh, Node};
+
+/// Bins per axis used when the caller has no reason to choose otherwise.
+pub const DEFAULT_BINS: usize = 32;
+
+/// Largest accepted number of bins per axis.
+pub const MAX_BINS: usize = 256;
+
+/// Largest accepted number of primitives: the `2n − 1` nodes must be addressable by the 31-bit
+/// child indices of [`Node`].
+pub const MAX_PRIMS: usize = 1 << 30;
+
+/// Primitives per chunk when a node is binned and partitioned in parallel. Fixed, so the work
+/// split (and the order of every reduction) does not depend on the number of threads.
+const CHUNK: usize = 8192;
+
+/// Nodes with at least this many primitives bin and partition in parallel.
+const PAR_NODE_MIN: usize = 4 * CHUNK;
+
+/// Subtrees with at least this many primitives are split off with `rayon::join`.
+const PAR_SUBTREE_MIN: usize = 2048;
+
+/// Bound on nested `rayon::join` calls; deeper subtrees continue on an explicit work stack.
+const MAX_JOIN_DEPTH: u32 = 48;
+
+/// Why a binned-SAH build was refused.
+#[derive(Clone, Debug, Error, PartialEq, Eq)]
+pub enum BinnedSahError {
+    /// The number of bins per axis is outside `2..=MAX_BINS`.
+    #[error("binned SAH needs between 2 and {MAX_BINS} bins per axis, got {0}")]
+    BinCount(usize),
+    /// The input holds no primitive.
+    #[error("binned SAH needs at least one primitive")]
+    NoPrimitives,
+    /// More primitives than the node format can address.
+    #[error("{count} primitives exceed the node format's limit of {MAX_PRIMS}")]
+    TooManyPrimitives {
+        /// Number of primitives given.
+        count: usize,
+    },
+    /// A primitive box has a non-finite coordinate or `min > max` on some axis.
+    #[error("primitive {index} has a non-finite or inverted box")]
+    InvalidBox {
+        /// Index of the first offending primitive.
+        index: usize,
+    },
+}
+
+/// A finished build: the hierarchy and its depth.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct BinnedSahBuild {
+    /// The hierarchy: `2n − 1` nodes in depth-first order (root at 0, left subtree before the
+    /// right one), one primitive per leaf.
+    pub bvh: Bvh,
+    /// Edges on the longest root-to-leaf path (0 for a single primitive).
+    pub depth: u32,
+}
+
+/// Builds a binned-SAH BVH over `aabbs` with `bins` centroid bins per axis
+/// ([`DEFAULT_BINS`] is the reference setting), one primitive per leaf.
+///
+/// The result does not depend on the size of the rayon thread pool it runs in.
+pub fn build_binned_sah(aabbs: &[Aabb], bins: usize) -> Result<Bvh, BinnedSahError> {
+    build_binned_sah_detailed(aabbs, bins).map(|b| b.bvh)
+}
+
+/// As [`build_binned_sah`], also reporting the depth of the tree.
+pub fn build_binned_sah_detailed(
+    aabbs: &[Aabb],
+    bins: usize,
+) -> Result<BinnedSahBuild, BinnedSahError> {
+    if !(2..=MAX_BINS).contains(&bins) {
+        return Err(BinnedSahError::BinCount(bins));
+    }
+    let n = aabbs.len();
+    if n == 0 {
+        return Err(BinnedSahError::NoPrimitives);
+    }
+    if n > MAX_PRIMS {
+        return Err(BinnedSahError::TooManyPrimitives { count: n });
+    }
+    if let Some(index) = aabbs
+        .par_iter()
+        .position_first(|b| !(b.is_finite() && b.is_valid()))
+    {
+        return Err(BinnedSahError::InvalidBox { index });
+    }
+
+    let mut src: Vec<PrimRef> = aabbs
+        .par_iter()
+        .enumerate()
+        .map(|(i, b)| PrimRef::new(b, i as u32))
+        .collect();
+    let mut dst = vec![PrimRef::default(); n];
+    let mut nodes = vec![Node::default(); 2 * n - 1];
+    let mut prim_indices = vec![0u32; n];
+
+    let (bounds, cbounds) = ordered_bounds(&src, true);
+    let ctx = Ctx {
+        src: &mut src,
+        dst: &mut dst,
+        nodes: &mut nodes,
+        out: &mut prim_indices,
+        prim_base: 0,
+        node_base: 0,
+    };
+    let task = Task {
+        bounds,
+        cbounds,
+        depth: 0,
+    };
+    let depth = build_parallel(ctx, task, bins, 0);
+    Ok(BinnedSahBuild {
+        bvh: Bvh {
+            nodes,
+            prim_indices,
+            root: 0,
+        },
+        depth,
+    })
+}
+
+/// A primitive while the tree is built: its box and its id (28 bytes, moved by partitioning).
+#[derive(Clone, Copy, Debug, Default)]
+#[repr(C)]
+struct PrimRef {
+    min: [f32; 3],
+    max: [f32; 3],
+    id: u32,
+}
+
+impl PrimRef {
+    #[inline]
+    fn new(b: &Aabb, id: u32) -> PrimRef {
+        PrimRef {
+            min: b.min.to_array(),
+            max: b.max.to_array(),
+            id,
+        }
+    }
+
+    /// Centroid, exact in `f64` (half the sum of two `f32`).
+    #[inline]
+    fn centroid(&self) -> [f64; 3] {
+        [
+            (self.min[0] as f64 + self.max[0] as f64) * 0.5,
+            (self.min[1] as f64 + self.max[1] as f64) * 0.5,
+            (self.min[2] as f64 + self.max[2] as f64) * 0.5,
+        ]
+    }
+
+    #[inline]
+    fn aabb(&self) -> Aabb {
+        Aabb::new(self.min.into(), self.max.into())
+    }
+}
+
+/// An `f32` box in SIMD registers, for the binning loop.
+#[derive(Clone, Copy, Debug)]
+struct Box3 {
+    min: Vec3A,
+    max: Vec3A,
+}
+
+impl Box3 {
+    const EMPTY: Box3 = Box3 {
+        min: Vec3A::splat(f32::INFINITY),
+        max: Vec3A::splat(f32::NEG_INFINITY),
+    };
+
+    #[inline]
+    fn grow_ref(&mut self, r: &PrimRef) {
+        self.min = self.min.min(Vec3A::from_array(r.min));
+        self.max = self.max.max(Vec3A::from_array(r.max));
+    }
+
+    #[inline]
+    fn union(&self, o: &Box3) -> Box3 {
+        Box3 {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+        }
+    }
+
+    /// Surface area in `f64` (the same arithmetic as [`Aabb::area_f64`]).
+    #[inline]
+    fn area(&self) -> f64 {
+        self.aabb().area_f64()
+    }
+
+    #[inline]
+    fn aabb(&self) -> Aabb {
+        Aabb::new(self.min.into(), self.max.into())
+    }
+}
+
+/// The box of a set of centroids, in `f64`.
+#[derive(Clone, Copy, Debug)]
+struct CentroidBox {
+    min: [f64; 3],
+    max: [f64; 3],
+}
+
+impl CentroidBox {
+    const EMPTY: CentroidBox = CentroidBox {
+        min: [f64::INFINITY; 3],
+        max: [f64::NEG_INFINITY; 3],
+    };
+
+    #[inline]
+    fn grow(&mut self, c: [f64; 3]) {
+        for a in 0..3 {
+            self.min[a] = self.min[a].min(c[a]);
+            self.max[a] = self.max[a].max(c[a]);
+        }
+    }
+
+    #[inline]
+    fn union(&self, o: &CentroidBox) -> CentroidBox {
+        let mut u = *self;
+        for a in 0..3 {
+            u.min[a] = u.min[a].min(o.min[a]);
+            u.max[a] = u.max[a].max(o.max[a]);
+        }
+        u
+    }
+}
+
+/// Maps a centroid coordinate to its bin on each axis of one node.
+#[derive(Clone, Copy, Debug)]
+struct BinMap {
+    origin: [f64; 3],
+    /// `bins / extent`, or 0 on an axis without centroid extent (everything in bin 0).
+    scale: [f64; 3],
+    /// Axes with a positive centroid extent.
+    active: [bool; 3],
+    bins: usize,
+}
+
+impl BinMap {
+    fn new(cb: &CentroidBox, bins: usize) -> BinMap {
+        let mut m = BinMap {
+            origin: cb.min,
+            scale: [0.0; 3],
+            active: [false; 3],
+            bins,
+        };
+        for a in 0..3 {
+            let extent = cb.max[a] - cb.min[a];
+            // Centroids are halves of sums of f32, so a positive extent is at least 2^-150 and
+            // `bins / extent` stays finite in f64.
+            if extent > 0.0 {
+                m.scale[a] = bins as f64 / extent;
+                m.active[a] = true;
+            }
+        }
+        m
+    }
+
+    /// Bin of coordinate `c` on `axis`: `floor((c − origin) · bins / extent)`, the maximum
+    /// clamped into the last bin. Monotone in `c`; the node's smallest centroid lands in bin 0
+    /// and its largest in bin `bins − 1`, so a split between them always exists.
+    #[inline]
+    fn bin(&self, c: f64, axis: usize) -> usize {
+        let t = (c - self.origin[axis]) * self.scale[axis];
+        // `as` saturates; t is never negative or NaN for a centroid inside the node.
+        (t as usize).min(self.bins - 1)
+    }
+
+    fn any_active(&self) -> bool {
+        self.active.iter().any(|&a| a)
+    }
+}
+
+/// One bin: the union of its primitives' boxes and their number.
+#[derive(Clone, Copy, Debug)]
+struct Bin {
+    bounds: Box3,
+    count: u32,
+}
+
+impl Bin {
+    const EMPTY: Bin = Bin {
+        bounds: Box3::EMPTY,
+        count: 0,
+    };
+}
+
+/// Bins of all three axes, axis-major: `bins[axis * nb + k]`.
+fn bin_serial(refs: &[PrimRef], map: &BinMap, out: &mut [Bin]) {
+    let nb = map.bins;
+    out[..3 * nb].fill(Bin::EMPTY);
+    for r in refs {
+        let c = r.centroid();
+        for (a, &ca) in c.iter().enumerate() {
+            let b = &mut out[a * nb + map.bin(ca, a)];
+            b.bounds.grow_ref(r);
+            b.count += 1;
+        }
+    }
+}
+
+/// The chosen split of a node.
+#[derive(Clone, Copy, Debug)]
+enum Plan {
+    /// Primitives whose bin on `axis` is below `split` go left.
+    Binned {
+        axis: usize,
+        split: usize,
+        n_left: usize,
+        left: Box3,
+        right: Box3,
+    },
+    /// All centroids coincide: halve the range.
+    Median,
+}
+
+/// Sweeps the bins for the lowest `A_L·N_L + A_R·N_R`; ties go to the lowest axis, then the
+/// lowest split position. `None` when no axis has a split with both sides non-empty.
+fn choose_split(bins: &[Bin], map: &BinMap) -> Option<Plan> {
+    let nb = map.bins;
+    let mut suffix_area = [0.0f64; MAX_BINS];
+    let mut suffix_count = [0u32; MAX_BINS];
+    let mut best: Option<(f64, usize, usize)> = None;
+    for axis in 0..3 {
+        if !map.active[axis] {
+            continue;
+        }
+        let ab = &bins[axis * nb..(axis + 1) * nb];
+        // suffix_*[k] describe bins k..nb.
+        let mut acc = Box3::EMPTY;
+        let mut cnt = 0u32;
+        for k in (1..nb).rev() {
+            acc = acc.union(&ab[k].bounds);
+            cnt += ab[k].count;
+            suffix_area[k] = acc.area();
+            suffix_count[k] = cnt;
+        }
+        let mut left = Box3::EMPTY;
+        let mut n_left = 0u32;
+        for k in 1..nb {
+            left = left.union(&ab[k - 1].bounds);
+            n_left += ab[k - 1].count;
+            let n_right = suffix_count[k];
+            if n_left == 0 || n_right == 0 {
+                continue;
+            }
+            let cost = left.area() * n_left as f64 + suffix_area[k] * n_right as f64;
+            if best.is_none_or(|(c, _, _)| cost < c) {
+                best = Some((cost, axis, k));
+            }
+        }
+    }
+    let (_, axis, split) = best?;
+    let ab = &bins[axis * nb..(axis + 1) * nb];
+    let (mut left, mut right) = (Box3::EMPTY, Box3::EMPTY);
+    let mut n_left = 0usize;
+    for (k, b) in ab.iter().enumerate() {
+        if k < split {
+            left = left.union(&b.bounds);
+            n_left += b.count as usize;
+        } else {
+            right = right.union(&b.bounds);
+        }
+    }
+    Some(Plan::Binned {
+        axis,
+        split,
+        n_left,
+        left,
+        right,
+    })
+}
+
+/// Stable partition of `src` into `left` (bin below `split` on `axis`) and `right`, which must
+/// have exactly the right lengths. Returns the centroid boxes of both sides.
+fn partition_into(
+    src: &[PrimRef],
+    left: &mut [PrimRef],
+    right: &mut [PrimRef],
+    map: &BinMap,
+    axis: usize,
+    split: usize,
+) -> (CentroidBox, CentroidBox) {
+    let (mut cl, mut cr) = (CentroidBox::EMPTY, CentroidBox::EMPTY);
+    let (mut li, mut ri) = (0usize, 0usize);
+    for r in src {
+        let c = r.centroid();
+        if map.bin(c[axis], axis) < split {
+            left[li] = *r;
+            li += 1;
+            cl.grow(c);
+        } else {
+            right[ri] = *r;
+            ri += 1;
+            cr.grow(c);
+        }
+    }
+    debug_assert!(li == left.len() && ri == right.len());
+    (cl, cr)
+}
+
+/// Box and centroid box of `refs`; with `parallel`, over fixed chunks folded in chunk order
+/// (so even the sign of a zero bound does not depend on the thread count).
+fn ordered_bounds(refs: &[PrimRef], parallel: bool) -> (Box3, CentroidBox) {
+    let serial = |rs: &[PrimRef]| {
+        let mut b = Box3::EMPTY;
+        let mut c = CentroidBox::EMPTY;
+        for r in rs {
+            b.grow_ref(r);
+            c.grow(r.centroid());
+        }
+        (b, c)
+    };
+    if !parallel || refs.len() < PAR_NODE_MIN {
+        return serial(refs);
+    }
+    let parts: Vec<(Box3, CentroidBox)> = refs.par_chunks(CHUNK).map(serial).collect();
+    parts
+        .iter()
+        .fold((Box3::EMPTY, CentroidBox::EMPTY), |(b, c), (pb, pc)| {
+            (b.union(pb), c.union(pc))
+        })
+}
+
+/// The slices one subtree owns: its primitive range in both ping-pong buffers (current data
+/// in `src`), its `2n − 1` nodes and its `n` output slots.
+struct Ctx<'a> {
+    src: &'a mut [PrimRef],
+    dst: &'a mut [PrimRef],
+    nodes: &'a mut [Node],
+    out: &'a mut [u32],
+    prim_base: u32,
+    node_base: u32,
+}
+
+/// What a node knows before it is split: the exact box of its primitives, their centroid box
+/// and its depth.
+#[derive(Clone, Copy, Debug)]
+struct Task {
+    bounds: Box3,
+    cbounds: CentroidBox,
+    depth: u32,
+}
+
+/// Builds the subtree of `ctx` in parallel; returns its deepest leaf depth.
+fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
+    let n = ctx.src.len();
+    if n < PAR_SUBTREE_MIN || joins >= MAX_JOIN_DEPTH {
+        return build_serial(ctx, task, nb);
+    }
+    let map = BinMap::new(&task.cbounds, nb);
+    let big = n >= PAR_NODE_MIN;
+
+    // Plan the split; for big nodes keep the per-chunk bins to place the partition's pieces.
+    let mut chunk_bins: Vec<Vec<Bin>> = Vec::new();
+    let plan = if !map.any_active() {
+        Plan::Median
+    } else if big {
+        chunk_bins = ctx
+            .src
+            .par_chunks(CHUNK)
+            .map(|rs| {
+                let mut b = vec![Bin::EMPTY; 3 * nb];
+                bin_serial(rs, &map, &mut b);
+                b
+            })
+            .collect();
+        let mut total = vec![Bin::EMPTY; 3 * nb];
+        for cb in &chunk_bins {
+            for (t, b) in total.iter_mut().zip(cb) {
+                t.bounds = t.bounds.union(&b.bounds);
+                t.count += b.count;
+            }
+        }
+        choose_split(&total, &map).unwrap_or(Plan::Median)
+    } else {
+        let mut b = vec![Bin::EMPTY; 3 * nb];
+        bin_serial(ctx.src, &map, &mut b);
+        choose_split(&b, &map).unwrap_or(Plan::Median)
+    };
+
+    let Ctx {
+        src,
+        dst,
+        nodes,
+        out,
+        prim_base,
+        node_base,
+    } = ctx;
+    let (n_left, lt, rt, swap) = match plan {
+        Plan::Binned {
+            axis,
+            split,
+            n_left,
+            left,
+            right,
+        } => {
+            let (cl, cr) = if big {
+                parallel_partition(src, dst, &chunk_bins, &map, axis, split, n_left)
+            } else {
+                let (dl, dr) = dst.split_at_mut(n_left);
+                partition_into(src, dl, dr, &map, axis, split)
+            };
+            (n_left, (left, cl), (right, cr), true)
+        }
+        Plan::Median => {
+            let half = n / 2;
+            let (bl, _) = ordered_bounds(&src[..half], true);
+            let (br, _) = ordered_bounds(&src[half..], true);
+            (half, (bl, task.cbounds), (br, task.cbounds), false)
+        }
+    };
+
+    let left_nodes = 2 * n_left - 1;
+    let (me, rest) = nodes
+        .split_first_mut()
+        .expect("a subtree owns at least one node");
+    *me = Node::inner(
+        task.bounds.aabb(),
+        node_base + 1,
+        node_base + 1 + left_nodes as u32,
+    );
+    let (nodes_l, nodes_r) = rest.split_at_mut(left_nodes);
+    let (out_l, out_r) = out.split_at_mut(n_left);
+    let (src_l, src_r) = src.split_at_mut(n_left);
+    let (dst_l, dst_r) = dst.split_at_mut(n_left);
+    // After a binned partition the data lives in `dst`: the buffers trade roles.
+    let ((cur_l, spare_l), (cur_r, spare_r)) = if swap {
+        ((dst_l, src_l), (dst_r, src_r))
+    } else {
+        ((src_l, dst_l), (src_r, dst_r))
+    };
+    let left_ctx = Ctx {
+        src: cur_l,
+        dst: spare_l,
+        nodes: nodes_l,
+        out: out_l,
+        prim_base,
+        node_base: node_base + 1,
+    };
+    let right_ctx = Ctx {
+        src: cur_r,
+        dst: spare_r,
+        nodes: nodes_r,
+        out: out_r,
+        prim_base: prim_base + n_left as u32,
+        node_base: node_base + 1 + left_nodes as u32,
+    };
+    let depth = task.depth + 1;
+    let (dl, dr) = rayon::join(
+        || {
+            build_parallel(
+                left_ctx,
+                Task {
+                    bounds: lt.0,
+                    cbounds: lt.1,
+                    depth,
+                },
+                nb,
+                joins + 1,
+            )
+        },
+        || {
+            build_parallel(
+                right_ctx,
+                Task {
+                    bounds: rt.0,
+                    cbounds: rt.1,
+                    depth,
+                },
+                nb,
+                joins + 1,
+            )
+        },
+    );
+    dl.max(dr)
+}
+
+/// Stable parallel partition of `src` into `dst` over the chunks the bins were taken on: each
+/// chunk's left count comes from its own bins, so every chunk knows where its pieces go.
+fn parallel_partition(
+    src: &[PrimRef],
+    dst: &mut [PrimRef],
+    chunk_bins: &[Vec<Bin>],
+    map: &BinMap,
+    axis: usize,
+    split: usize,
+    n_left: usize,
+) -> (CentroidBox, CentroidBox) {
+    let nb = map.bins;
+    let (mut lrest, mut rrest) = dst.split_at_mut(n_left);
+    let mut pieces: Vec<(&mut [PrimRef], &mut [PrimRef])> = Vec::with_capacity(chunk_bins.len());
+    for (chunk, bins) in src.chunks(CHUNK).zip(chunk_bins) {
+        let l: usize = bins[axis * nb..axis * nb + split]
+            .iter()
+            .map(|b| b.count as usize)
+            .sum();
+        let (pl, tl) = std::mem::take(&mut lrest).split_at_mut(l);
+        let (pr, tr) = std::mem::take(&mut rrest).split_at_mut(chunk.len() - l);
+        lrest = tl;
+        rrest = tr;
+        pieces.push((pl, pr));
+    }
+    debug_assert!(lrest.is_empty() && rrest.is_empty());
+    let parts: Vec<(CentroidBox, CentroidBox)> = src
+        .par_chunks(CHUNK)
+        .zip(pieces.into_par_iter())
+        .map(|(chunk, (pl, pr))| partition_into(chunk, pl, pr, map, axis, split))
+        .collect();
+    parts.iter().fold(
+        (CentroidBox::EMPTY, CentroidBox::EMPTY),
+        |(l, r), (pl, pr)| (l.union(pl), r.union(pr)),
+    )
+}
+
+/// A node waiting on the serial work stack; offsets are local to the subtree.
+#[derive(Clone, Copy, Debug)]
+struct SerialTask {
+    lo: usize,
+    hi: usize,
+    node: usize,
+    /// The node's primitives are in the spare buffer (`ctx.dst`) rather than `ctx.src`.
+    in_spare: bool,
+    task: Task,
+}
+
+/// Builds the subtree of `ctx` on one thread with an explicit work stack.
+fn build_serial(ctx: Ctx<'_>, root: Task, nb: usize) -> u32 {
+    let Ctx {
+        src: buf_a,
+        dst: buf_b,
+        nodes,
+        out,
+        prim_base,
+        node_base,
+    } = ctx;
+    let mut bins = vec![Bin::EMPTY; 3 * nb];
+    let mut stack = vec![SerialTask {
+        lo: 0,
+        hi: buf_a.len(),
+        node: 0,
+        in_spare: false,
+        task: root,
+    }];
+    let mut max_depth = 0u32;
+    let leaf = |r: &PrimRef, slot: usize| Node::leaf(r.aabb(), prim_base + slot as u32, 1);
+
+    while let Some(st) = stack.pop() {
+        let SerialTask {
+            lo,
+            hi,
+            node,
+            in_spare,
+            task,
+        } = st;
+        let n = hi - lo;
+        let (cur, spare): (&mut [PrimRef], &mut [PrimRef]) = if in_spare {
+            (&mut buf_b[lo..hi], &mut buf_a[lo..hi])
+        } else {
+            (&mut buf_a[lo..hi], &mut buf_b[lo..hi])
+        };
+        if n == 1 {
+            nodes[node] = leaf(&cur[0], lo);
+            out[lo] = cur[0].id;
+            max_depth = max_depth.max(task.depth);
+            continue;
+        }
+        if n == 2 {
+            // Any split of two primitives gives the same tree: two leaves in range order.
+            let g = node_base + node as u32;
+            nodes[node] = Node::inner(task.bounds.aabb(), g + 1, g + 2);
+            nodes[node + 1] = leaf(&cur[0], lo);
+            nodes[node + 2] = leaf(&cur[1], lo + 1);
+            out[lo] = cur[0].id;
+            out[lo + 1] = cur[1].id;
+            max_depth = max_depth.max(task.depth + 1);
+            continue;
+        }
+
+        let map = BinMap::new(&task.cbounds, nb);
+        let plan = if map.any_active() {
+            bin_serial(cur, &map, &mut bins);
+            choose_split(&bins, &map).unwrap_or(Plan::Median)
+        } else {
+            Plan::Median
+        };
+        let (n_left, lt, rt, child_in_spare) = match plan {
+            Plan::Binned {
+                axis,
+                split,
+                n_left,
+                left,
+                right,
+            } => {
+                let (dl, dr) = spare.split_at_mut(n_left);
+                let (cl, cr) = partition_into(cur, dl, dr, &map, axis, split);
+                (n_left, (left, cl), (right, cr), !in_spare)
+            }
+            Plan::Median => {
+                let half = n / 2;
+                let (bl, _) = ordered_bounds(&cur[..half], false);
+                let (br, _) = ordered_bounds(&cur[half..], false);
+                (half, (bl, task.cbounds), (br, task.cbounds), in_spare)
+            }
+        };
+        let left_node = node + 1;
+        let right_node = node + 2 * n_left;
+        nodes[node] = Node::inner(
+            task.bounds.aabb(),
+            node_base + left_node as u32,
+            node_base + right_node as u32,
+        );
+        let depth = task.depth + 1;
+        stack.push(SerialTask {
+            lo: lo + n_left,
+            hi,
+            node: right_node,
+            in_spare: child_in_spare,
+            task: Task {
+                bounds: rt.0,
+                cbounds: rt.1,
+                depth,
+            },
+        });
+        stack.push(SerialTask {
+            lo,
+            hi: lo + n_left,
+            node: left_node,
+            in_spare: child_in_spare,
+            task: Task {
+                bounds: lt.0,
+                cbounds: lt.1,
+                depth,
+            },
+        });
+    }
+    max_depth
+}
