@@ -1,6 +1,7 @@
 //! Bounding volume hierarchies: the node layout and (in their own files) the builders,
 //! validation and cost metrics.
 
+pub mod atrbvh;
 pub mod binned_sah;
 pub mod node;
 pub mod sah;

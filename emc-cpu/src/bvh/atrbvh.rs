@@ -1,0 +1,504 @@
+//! The `atrbvh` post-pass: agglomerative treelet restructuring (Domingues & Pedrini 2015) of a
+//! finished binary BVH, in parallel bottom-up waves with per-node atomic counters. It rewrites
+//! only inner nodes in place (same node slots, same leaves), so the result stays a valid [`Bvh`].
+//!
+//! One pass, for a threshold `γ`:
+//!
+//! 1. Every leaf starts a climb (rayon over the leaves). At each parent an atomic counter is
+//!    bumped; the first child to arrive stops, the second goes on, so a node is handled exactly
+//!    once and only after both of its subtrees are final.
+//! 2. The node's box, primitive count and subtree cost `c(n) = ct·A(n) + c(l) + c(r)` (a leaf:
+//!    `ci·A(l)·|l|`) are computed from its children.
+//! 3. If its subtree holds at least `γ` primitives the node becomes a treelet root: starting from
+//!    its two children, the treelet leaf with the largest surface area that is not a real leaf is
+//!    replaced by its two children until the treelet has `treelet_size` leaves.
+//! 4. The treelet leaves are re-clustered agglomeratively: a distance matrix
+//!    `d(i, j) = A(box_i ∪ box_j)` is kept, and `k − 1` times the closest pair merges into a new
+//!    cluster (ties: the first pair in row-major order `i < j`).
+//! 5. If the new topology costs less, it is written back into the treelet's own inner-node slots
+//!    (the treelet root keeps its slot, so nothing above it changes).
+//!
+//! Passes repeat `iterations` times with `γ` doubled each time. Since a node's result depends
+//! only on its own subtree, the output does not depend on the number of threads or on timing.
+
+use std::sync::atomic::{AtomicU32, Ordering};
+
+use emc_core::Aabb;
+use rayon::prelude::*;
+
+use super::node::{Bvh, Node};
+use super::sah::{sah_cost, SahConstants};
+use super::validate::ValidateError;
+
+/// Smallest accepted treelet size.
+pub const MIN_TREELET_SIZE: usize = 7;
+/// Largest accepted treelet size.
+pub const MAX_TREELET_SIZE: usize = 9;
+
+/// Marks "no parent" (the root) in the parent array.
+const NO_PARENT: u32 = u32::MAX;
+
+/// Settings of [`restructure`]. [`AtrConfig::default`] is the ATRBVH shipped configuration:
+/// treelets of 9 leaves, 2 iterations, `γ` starting at the treelet size, `ct = 1.2`, `ci = 1`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AtrConfig {
+    /// Leaves per treelet, in [`MIN_TREELET_SIZE`]`..=`[`MAX_TREELET_SIZE`].
+    pub treelet_size: usize,
+    /// Number of bottom-up passes (0 only refits the boxes).
+    pub iterations: u32,
+    /// Minimum subtree primitive count of a treelet root in the first pass (doubled in each
+    /// later pass); `None` means the treelet size.
+    pub gamma: Option<u32>,
+    /// Cost of one inner node (traversal); finite and positive.
+    pub ct: f64,
+    /// Cost of one primitive test (intersection); finite and positive.
+    pub ci: f64,
+}
+
+impl Default for AtrConfig {
+    fn default() -> Self {
+        AtrConfig {
+            treelet_size: 9,
+            iterations: 2,
+            gamma: None,
+            ct: 1.2,
+            ci: 1.0,
+        }
+    }
+}
+
+impl AtrConfig {
+    /// Check every field; [`restructure`] calls this first.
+    pub fn check(&self) -> Result<(), AtrError> {
+        if !(MIN_TREELET_SIZE..=MAX_TREELET_SIZE).contains(&self.treelet_size) {
+            return Err(AtrError::TreeletSize(self.treelet_size));
+        }
+        if self.gamma == Some(0) {
+            return Err(AtrError::Gamma);
+        }
+        for (name, v) in [("ct", self.ct), ("ci", self.ci)] {
+            if !(v.is_finite() && v > 0.0) {
+                return Err(AtrError::Constant { name, value: v });
+            }
+        }
+        Ok(())
+    }
+
+    /// The threshold `γ` of pass `iteration` (0-based): the start value doubled per pass,
+    /// saturating at `u32::MAX`.
+    pub fn gamma_at(&self, iteration: u32) -> u32 {
+        let g0 = self.gamma.unwrap_or(self.treelet_size as u32) as u64;
+        let g = g0 << iteration.min(32);
+        g.min(u32::MAX as u64) as u32
+    }
+}
+
+/// Why [`restructure`] refused to run. The tree is left untouched in every case.
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum AtrError {
+    /// The treelet size is outside the supported range.
+    #[error(
+        "treelet size {0} is outside {min}..={max}",
+        min = MIN_TREELET_SIZE,
+        max = MAX_TREELET_SIZE
+    )]
+    TreeletSize(usize),
+    /// `γ` was given as 0.
+    #[error("gamma must be at least 1")]
+    Gamma,
+    /// A cost constant is not a finite positive number.
+    #[error("cost constant {name} = {value} must be finite and positive")]
+    Constant {
+        /// `"ct"` or `"ci"`.
+        name: &'static str,
+        /// The value given.
+        value: f64,
+    },
+    /// The input tree does not pass [`Bvh::validate`] against the primitive boxes.
+    #[error("input BVH is malformed: {0}")]
+    Invalid(#[from] ValidateError),
+}
+
+/// What [`restructure`] did.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct AtrStats {
+    /// Treelets formed (summed over passes).
+    pub treelets_formed: u64,
+    /// Treelets whose topology was replaced by a cheaper one (summed over passes).
+    pub treelets_improved: u64,
+    /// `(formed, improved)` per pass.
+    pub per_iteration: Vec<(u64, u64)>,
+    /// SAH of the input tree with the configured `ct`/`ci` ([`sah_cost`]).
+    pub sah_before: f64,
+    /// SAH of the output tree with the configured `ct`/`ci` ([`sah_cost`]).
+    pub sah_after: f64,
+}
+
+/// Per-node bookkeeping of a pass: the subtree cost, the parent and the primitive count.
+#[derive(Clone, Copy, Debug, Default)]
+struct Aux {
+    cost: f64,
+    parent: u32,
+    count: u32,
+}
+
+/// Restructure `bvh` in place by agglomerative treelet restructuring; `aabbs[p]` is the box of
+/// primitive `p`. The input must pass [`Bvh::validate`] (any leaf size is accepted; the
+/// reference use is one primitive per leaf, before collapse). Leaf boxes are recomputed from
+/// `aabbs` and inner boxes refitted, so the output is tight.
+///
+/// The set of leaves and every leaf's primitives are unchanged; only inner nodes are rewritten,
+/// and only where the subtree cost strictly drops, so the SAH never rises. The result is
+/// bit-identical for any number of rayon threads.
+pub fn restructure(bvh: &mut Bvh, aabbs: &[Aabb], cfg: &AtrConfig) -> Result<AtrStats, AtrError> {
+    cfg.check()?;
+    bvh.validate(aabbs)?;
+    let k = SahConstants {
+        ct: cfg.ct,
+        ci: cfg.ci,
+    };
+    let mut stats = AtrStats {
+        sah_before: sah_cost(bvh, k),
+        ..AtrStats::default()
+    };
+    let n = bvh.nodes.len();
+    if n > 1 {
+        // Parents and leaves, in parallel: the validated tree gives every non-root node exactly
+        // one parent, so the stores never collide.
+        let parent: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(NO_PARENT)).collect();
+        bvh.nodes.par_iter().enumerate().for_each(|(i, node)| {
+            if !node.is_leaf() {
+                parent[node.left() as usize].store(i as u32, Ordering::Relaxed);
+                parent[node.right() as usize].store(i as u32, Ordering::Relaxed);
+            }
+        });
+        let mut aux: Vec<Aux> = parent
+            .into_par_iter()
+            .map(|p| Aux {
+                cost: 0.0,
+                parent: p.into_inner(),
+                count: 0,
+            })
+            .collect();
+        let leaves: Vec<u32> = (0..n as u32)
+            .into_par_iter()
+            .filter(|&i| bvh.nodes[i as usize].is_leaf())
+            .collect();
+        // Tight leaf boxes from the primitives.
+        {
+            let prim_indices = &bvh.prim_indices;
+            bvh.nodes.par_iter_mut().for_each(|node| {
+                if node.is_leaf() {
+                    let (f, c) = (node.first() as usize, node.count() as usize);
+                    node.bounds = prim_indices[f..f + c]
+                        .iter()
+                        .fold(Aabb::EMPTY, |b, &p| b.union(&aabbs[p as usize]));
+                }
+            });
+        }
+        let counters: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(0)).collect();
+        for it in 0..cfg.iterations {
+            counters.par_iter().for_each(|c| c.store(0, Ordering::Relaxed));
+            let pass = Pass {
+                nodes: SharedSlice::new(&mut bvh.nodes),
+                aux: SharedSlice::new(&mut aux),
+                counters: &counters,
+                gamma: cfg.gamma_at(it),
+                size: cfg.treelet_size,
+                ct: cfg.ct,
+                ci: cfg.ci,
+            };
+            let (formed, improved) = leaves
+                .par_iter()
+                .map(|&leaf| pass.climb(leaf))
+                .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+            stats.treelets_formed += formed;
+            stats.treelets_improved += improved;
+            stats.per_iteration.push((formed, improved));
+        }
+    }
+    stats.sah_after = sah_cost(bvh, k);
+    Ok(stats)
+}
+
+/// A slice that several threads index at once, each touching only elements it owns.
+///
+/// The ownership rule of a pass: the thread that wins the counter race at node `n` owns `n`'s
+/// whole subtree from then on (all other threads have finished with it, and none will come back:
+/// they only climb above their own finished nodes). Every access goes through the bounds-checked
+/// `get`/`set` below.
+struct SharedSlice<T> {
+    ptr: *mut T,
+    len: usize,
+}
+
+// SAFETY: a `SharedSlice` is only built from a `&mut [T]` that outlives the pass, and elements
+// are only accessed under the ownership rule above, so no element is accessed by two threads
+// without a happens-before edge (the AcqRel counters provide it).
+unsafe impl<T: Send> Sync for SharedSlice<T> {}
+
+impl<T: Copy> SharedSlice<T> {
+    fn new(s: &mut [T]) -> Self {
+        SharedSlice {
+            ptr: s.as_mut_ptr(),
+            len: s.len(),
+        }
+    }
+
+    /// Read element `i`.
+    ///
+    /// # Safety
+    /// The calling thread owns element `i` under the pass's ownership rule.
+    #[inline]
+    unsafe fn get(&self, i: u32) -> T {
+        let i = i as usize;
+        assert!(i < self.len, "node index out of range");
+        // SAFETY: in bounds (checked above); no concurrent writer by the caller's contract.
+        unsafe { *self.ptr.add(i) }
+    }
+
+    /// Write element `i`.
+    ///
+    /// # Safety
+    /// The calling thread owns element `i` under the pass's ownership rule.
+    #[inline]
+    unsafe fn set(&self, i: u32, v: T) {
+        let i = i as usize;
+        assert!(i < self.len, "node index out of range");
+        // SAFETY: in bounds (checked above); no concurrent reader or writer by the contract.
+        unsafe { *self.ptr.add(i) = v }
+    }
+}
+
+/// One bottom-up pass over the tree.
+struct Pass<'a> {
+    nodes: SharedSlice<Node>,
+    aux: SharedSlice<Aux>,
+    counters: &'a [AtomicU32],
+    gamma: u32,
+    size: usize,
+    ct: f64,
+    ci: f64,
+}
+
+/// A treelet under construction: its leaves (node indices) and its inner-node slots, the root
+/// first.
+struct Treelet {
+    leaves: [u32; MAX_TREELET_SIZE],
+    n_leaves: usize,
+    slots: [u32; MAX_TREELET_SIZE - 1],
+    n_slots: usize,
+}
+
+impl Pass<'_> {
+    /// Start at `leaf`, climb while this thread is the second to arrive; returns the treelets
+    /// (formed, improved) on the way.
+    fn climb(&self, leaf: u32) -> (u64, u64) {
+        // SAFETY: every leaf is the start of exactly one climb and nobody else touches a leaf's
+        // bookkeeping before its climb has passed the parent's counter.
+        unsafe {
+            let node = self.nodes.get(leaf);
+            let mut a = self.aux.get(leaf);
+            a.count = node.count();
+            a.cost = self.ci * node.bounds.area_f64() * node.count() as f64;
+            self.aux.set(leaf, a);
+        }
+        let (mut formed, mut improved) = (0u64, 0u64);
+        let mut cur = leaf;
+        loop {
+            // SAFETY: `cur` is owned by this thread (a leaf it started at, or a node it won).
+            let p = unsafe { self.aux.get(cur) }.parent;
+            if p == NO_PARENT {
+                break;
+            }
+            // AcqRel: releases this subtree's writes to the sibling's thread, and acquires the
+            // sibling subtree's writes when this thread arrives second.
+            if self.counters[p as usize].fetch_add(1, Ordering::AcqRel) == 0 {
+                break;
+            }
+            // SAFETY: this thread arrived second at `p`, so both subtrees of `p` are final and
+            // their writers are done; `p`'s subtree is now owned by this thread alone.
+            let (f, i) = unsafe { self.process(p) };
+            formed += f as u64;
+            improved += i as u64;
+            cur = p;
+        }
+        (formed, improved)
+    }
+
+    /// Refit `p`, compute its cost, and restructure its treelet if it is large enough.
+    /// Returns (treelet formed, treelet improved).
+    ///
+    /// # Safety
+    /// The calling thread owns `p`'s subtree.
+    unsafe fn process(&self, p: u32) -> (bool, bool) {
+        // SAFETY: every index touched below is `p` or lies in `p`'s subtree, which the caller
+        // owns.
+        unsafe {
+            let node = self.nodes.get(p);
+            let (l, r) = (node.left(), node.right());
+            let (nl, nr) = (self.nodes.get(l), self.nodes.get(r));
+            let (al, ar) = (self.aux.get(l), self.aux.get(r));
+            let bounds = nl.bounds.union(&nr.bounds);
+            let count = al.count.saturating_add(ar.count);
+            let cost = self.ct * bounds.area_f64() + al.cost + ar.cost;
+            self.nodes.set(p, Node::inner(bounds, l, r));
+            let mut ap = self.aux.get(p);
+            ap.count = count;
+            ap.cost = cost;
+            self.aux.set(p, ap);
+            if count < self.gamma {
+                return (false, false);
+            }
+            let t = self.form_treelet(p, l, r);
+            if t.n_leaves < 3 {
+                return (false, false);
+            }
+            (true, self.recluster(p, &t, cost))
+        }
+    }
+
+    /// Grow the treelet of `p` by repeatedly opening its largest-area non-leaf treelet leaf.
+    ///
+    /// # Safety
+    /// The calling thread owns `p`'s subtree.
+    unsafe fn form_treelet(&self, p: u32, l: u32, r: u32) -> Treelet {
+        let mut t = Treelet {
+            leaves: [0; MAX_TREELET_SIZE],
+            n_leaves: 2,
+            slots: [0; MAX_TREELET_SIZE - 1],
+            n_slots: 1,
+        };
+        t.leaves[0] = l;
+        t.leaves[1] = r;
+        t.slots[0] = p;
+        let mut areas = [0.0f64; MAX_TREELET_SIZE];
+        let mut open = [false; MAX_TREELET_SIZE];
+        for i in 0..2 {
+            // SAFETY: the children of `p` are in `p`'s subtree.
+            let nd = unsafe { self.nodes.get(t.leaves[i]) };
+            areas[i] = nd.bounds.area_f64();
+            open[i] = !nd.is_leaf();
+        }
+        while t.n_leaves < self.size {
+            let mut best = usize::MAX;
+            let mut best_area = f64::NEG_INFINITY;
+            for i in 0..t.n_leaves {
+                if open[i] && areas[i] > best_area {
+                    best = i;
+                    best_area = areas[i];
+                }
+            }
+            if best == usize::MAX {
+                break;
+            }
+            let x = t.leaves[best];
+            // SAFETY: `x` is a treelet leaf, hence in `p`'s subtree, and so are its children.
+            let (nx, c0, c1) = unsafe {
+                let nx = self.nodes.get(x);
+                (nx, self.nodes.get(nx.left()), self.nodes.get(nx.right()))
+            };
+            t.slots[t.n_slots] = x;
+            t.n_slots += 1;
+            let j = t.n_leaves;
+            t.leaves[best] = nx.left();
+            areas[best] = c0.bounds.area_f64();
+            open[best] = !c0.is_leaf();
+            t.leaves[j] = nx.right();
+            areas[j] = c1.bounds.area_f64();
+            open[j] = !c1.is_leaf();
+            t.n_leaves += 1;
+        }
+        t
+    }
+
+    /// Agglomerative clustering of the treelet leaves; writes the new topology into the treelet's
+    /// slots if it is cheaper than `old_cost`. Returns whether it did.
+    ///
+    /// # Safety
+    /// The calling thread owns `p`'s subtree.
+    unsafe fn recluster(&self, p: u32, t: &Treelet, old_cost: f64) -> bool {
+        const M: usize = MAX_TREELET_SIZE;
+        let k = t.n_leaves;
+        // Cluster state, indexed by the cluster's position 0..k (a merge keeps the lower one).
+        let mut boxes = [Aabb::EMPTY; M];
+        let mut costs = [0.0f64; M];
+        let mut counts = [0u32; M];
+        let mut refs = [0u32; M];
+        let mut alive = [false; M];
+        for i in 0..k {
+            // SAFETY: treelet leaves lie in `p`'s subtree.
+            let (nd, a) = unsafe { (self.nodes.get(t.leaves[i]), self.aux.get(t.leaves[i])) };
+            boxes[i] = nd.bounds;
+            costs[i] = a.cost;
+            counts[i] = a.count;
+            refs[i] = t.leaves[i];
+            alive[i] = true;
+        }
+        let mut dist = [[0.0f64; M]; M];
+        for i in 0..k {
+            for j in i + 1..k {
+                dist[i][j] = boxes[i].union(&boxes[j]).area_f64();
+            }
+        }
+        // Merge `m` (0-based) goes to slot `slots[k - 2 - m]`: the last merge is the root `p`.
+        let mut merges = [(Aabb::EMPTY, 0u32, 0u32, 0.0f64, 0u32); M - 1];
+        for m in 0..k - 1 {
+            let (mut bi, mut bj, mut bd) = (usize::MAX, usize::MAX, f64::INFINITY);
+            for i in 0..k {
+                if !alive[i] {
+                    continue;
+                }
+                for j in i + 1..k {
+                    if alive[j] && (dist[i][j] < bd || bi == usize::MAX) {
+                        (bi, bj, bd) = (i, j, dist[i][j]);
+                    }
+                }
+            }
+            let b = boxes[bi].union(&boxes[bj]);
+            let c = self.ct * b.area_f64() + costs[bi] + costs[bj];
+            let slot = t.slots[k - 2 - m];
+            merges[m] = (b, refs[bi], refs[bj], c, counts[bi].saturating_add(counts[bj]));
+            boxes[bi] = b;
+            costs[bi] = c;
+            counts[bi] = merges[m].4;
+            refs[bi] = slot;
+            alive[bj] = false;
+            for o in 0..k {
+                if alive[o] && o != bi {
+                    let d = b.union(&boxes[o]).area_f64();
+                    if o < bi {
+                        dist[o][bi] = d;
+                    } else {
+                        dist[bi][o] = d;
+                    }
+                }
+            }
+        }
+        let new_cost = merges[k - 2].3;
+        // A relative margin keeps rounding noise from being taken for a gain, so that the SAH
+        // summed over the whole tree cannot rise.
+        if new_cost >= old_cost * (1.0 - 1e-9) {
+            return false;
+        }
+        for (m, &(b, left, right, cost, count)) in merges[..k - 1].iter().enumerate() {
+            let slot = t.slots[k - 2 - m];
+            // SAFETY: `slot`, `left` and `right` are treelet slots or treelet leaves, all in
+            // `p`'s subtree.
+            unsafe {
+                self.nodes.set(slot, Node::inner(b, left, right));
+                let mut a = self.aux.get(slot);
+                a.cost = cost;
+                a.count = count;
+                self.aux.set(slot, a);
+                for c in [left, right] {
+                    let mut ac = self.aux.get(c);
+                    ac.parent = slot;
+                    self.aux.set(c, ac);
+                }
+            }
+        }
+        debug_assert_eq!(t.slots[0], p);
+        true
+    }
+}
