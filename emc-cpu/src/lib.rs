@@ -3,5 +3,8 @@
 //! The CPU side of emc: scene loading and built-in scenes, parallel batch encoding on top of
 //! emc-core, radix sorting, LBVH builders, SAH metrics and the verbs of the `emc` binary.
 
+pub mod aabbs;
 pub mod bvh;
 pub mod cli;
+pub mod scene;
+pub mod sort;
