@@ -4,6 +4,7 @@
 //! emc-core, radix sorting, LBVH builders, SAH metrics and the verbs of the `emc` binary.
 
 pub mod aabbs;
+pub mod build;
 pub mod bvh;
 pub mod cli;
 pub mod scene;

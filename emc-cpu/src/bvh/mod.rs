@@ -1,9 +1,13 @@
 //! Bounding volume hierarchies: the node layout and (in their own files) the builders,
 //! validation and cost metrics.
 
+pub mod apetrei;
 pub mod atrbvh;
 pub mod binned_sah;
+pub mod collapse;
+pub mod karras;
 pub mod node;
+pub mod refit;
 pub mod sah;
 pub mod validate;
 

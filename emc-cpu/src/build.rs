@@ -1,0 +1,508 @@
+//! The BVH build pipeline driver: triangles → boxes → frame → codes → radix sort → hierarchy
+//! (Karras or Apetrei) → bounds → SAH collapse, or the binned-SAH reference, on a local rayon
+//! pool, timing every phase in wall and thread-CPU milliseconds.
+
+use std::fmt;
+use std::str::FromStr;
+use std::time::Instant;
+
+use emc_core::{Aabb, Encoder, Frame, LayoutSpec, Normalization, SceneBounds};
+use rayon::prelude::*;
+
+use crate::bvh::apetrei::build_apetrei;
+use crate::bvh::binned_sah::{build_binned_sah, BinnedSahError, DEFAULT_BINS};
+use crate::bvh::collapse::{collapse_bvh, emit};
+use crate::bvh::karras::build_karras;
+use crate::bvh::refit::{refit, CollapseParams, RadixTree};
+use crate::bvh::{sah_cost, sah_headline, Bvh, SahConstants};
+use crate::scene::Scene;
+use crate::sort::{sort_pairs, RadixKey, SortError, SortReport};
+
+/// Boxes per rayon task in the frame and encode phases.
+const CHUNK: usize = 1 << 14;
+
+/// Most primitives a build accepts (leaf ids `n − 1 + p` must fit a `u32` below the flag bit).
+pub const MAX_PRIMS: usize = (1 << 31) - 1;
+
+/// A hierarchy builder.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Builder {
+    /// Karras 2012 radix tree, then a parallel bottom-up refit (`lbvh`).
+    Lbvh,
+    /// Apetrei 2014: the same tree, topology and bounds in one bottom-up pass (`lbvh-apetrei`).
+    LbvhApetrei,
+    /// Top-down binned SAH, 32 bins, the quality reference (`binned-sah`).
+    BinnedSah,
+}
+
+impl Builder {
+    /// All builders, in the order reports list them.
+    pub const ALL: [Builder; 3] = [Builder::Lbvh, Builder::LbvhApetrei, Builder::BinnedSah];
+
+    /// The command-line name.
+    pub fn name(self) -> &'static str {
+        match self {
+            Builder::Lbvh => "lbvh",
+            Builder::LbvhApetrei => "lbvh-apetrei",
+            Builder::BinnedSah => "binned-sah",
+        }
+    }
+}
+
+impl fmt::Display for Builder {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+impl FromStr for Builder {
+    type Err = BuildError;
+    fn from_str(s: &str) -> Result<Self, BuildError> {
+        Builder::ALL
+            .into_iter()
+            .find(|b| b.name() == s)
+            .ok_or_else(|| BuildError::UnknownBuilder(s.to_string()))
+    }
+}
+
+/// Everything that can stop a build.
+#[derive(Debug, thiserror::Error)]
+pub enum BuildError {
+    /// A builder name that is not `lbvh`, `lbvh-apetrei` or `binned-sah`.
+    #[error("unknown builder `{0}` (expected lbvh, lbvh-apetrei or binned-sah)")]
+    UnknownBuilder(String),
+    /// `threads` of 0.
+    #[error("the thread count must be at least 1")]
+    ZeroThreads,
+    /// A maximum leaf size of 0.
+    #[error("the maximum leaf size must be at least 1")]
+    ZeroLeafSize,
+    /// The thread pool could not be created.
+    #[error("cannot create a pool of {threads} threads: {msg}")]
+    Pool {
+        /// Threads asked for.
+        threads: usize,
+        /// Why.
+        msg: String,
+    },
+    /// No primitives.
+    #[error("the scene has no primitives")]
+    Empty,
+    /// More primitives than the node ids can address.
+    #[error("{0} primitives exceed the {MAX_PRIMS} a build supports")]
+    TooMany(usize),
+    /// Bad primitive boxes or a layout problem.
+    #[error(transparent)]
+    Core(#[from] emc_core::Error),
+    /// The radix sort refused its input.
+    #[error(transparent)]
+    Sort(#[from] SortError),
+    /// The binned-SAH builder refused its input.
+    #[error(transparent)]
+    Binned(#[from] BinnedSahError),
+}
+
+/// Options of a build.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct BuildOptions {
+    /// Code layout (ignored by `binned-sah`).
+    pub layout: LayoutSpec,
+    /// Hierarchy builder.
+    pub builder: Builder,
+    /// Threads of the local pool (≥ 1).
+    pub threads: usize,
+    /// Collapse constants and maximum leaf size (`max_leaf = 1` keeps one primitive per leaf).
+    pub collapse: CollapseParams,
+}
+
+impl Default for BuildOptions {
+    /// `emc64-var`, `lbvh`, 1 thread, `Ct = 1.2`, `Ci = 1`, leaves of at most 8.
+    fn default() -> Self {
+        BuildOptions {
+            layout: LayoutSpec::Emc64Var,
+            builder: Builder::Lbvh,
+            threads: 1,
+            collapse: CollapseParams::default(),
+        }
+    }
+}
+
+/// The pipeline phases, in order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Phase {
+    /// Triangle boxes.
+    Aabb,
+    /// Scene frame (parallel reduction) and codes.
+    Encode,
+    /// Radix sort of (code, index) pairs.
+    Sort,
+    /// Topology (Apetrei: topology, bounds and collapse decisions in one pass; binned SAH: the
+    /// whole top-down build).
+    Hierarchy,
+    /// Bottom-up bounds with the collapse decisions (Karras only).
+    Bounds,
+    /// Writing the collapsed BVH.
+    Collapse,
+}
+
+impl Phase {
+    /// All phases in pipeline order.
+    pub const ALL: [Phase; 6] = [
+        Phase::Aabb,
+        Phase::Encode,
+        Phase::Sort,
+        Phase::Hierarchy,
+        Phase::Bounds,
+        Phase::Collapse,
+    ];
+
+    /// Short name used in reports.
+    pub fn name(self) -> &'static str {
+        match self {
+            Phase::Aabb => "aabb",
+            Phase::Encode => "encode",
+            Phase::Sort => "sort",
+            Phase::Hierarchy => "hierarchy",
+            Phase::Bounds => "bounds",
+            Phase::Collapse => "collapse",
+        }
+    }
+}
+
+/// Time spent in one phase.
+#[derive(Clone, Copy, Debug, PartialEq, Default)]
+pub struct PhaseTime {
+    /// Wall-clock milliseconds.
+    pub wall_ms: f64,
+    /// CPU milliseconds summed over the pool's threads.
+    pub cpu_ms: f64,
+}
+
+/// What a build measured and produced (besides the BVH).
+#[derive(Clone, Debug, PartialEq)]
+pub struct BuildReport {
+    /// Primitives built over.
+    pub prims: usize,
+    /// Threads of the pool.
+    pub threads: usize,
+    /// Builder used.
+    pub builder: Builder,
+    /// The resolved layout, as the seed prints it (`None` for binned SAH).
+    pub layout: Option<String>,
+    /// Time per phase, indexed like [`Phase::ALL`].
+    pub phases: [PhaseTime; 6],
+    /// Radix sort passes done and skipped.
+    pub sort: SortReport,
+    /// Nodes of the collapsed BVH.
+    pub nodes: usize,
+    /// Leaves of the collapsed BVH.
+    pub leaves: usize,
+    /// Depth of the collapsed BVH (edges, root to deepest leaf).
+    pub depth: usize,
+    /// Headline SAH: `Ct = Ci = 1`, one primitive per leaf (before collapse).
+    pub sah_headline: f64,
+    /// SAH of the collapsed BVH with the collapse constants.
+    pub sah_collapsed: f64,
+}
+
+impl BuildReport {
+    /// Sum of the phases.
+    pub fn total(&self) -> PhaseTime {
+        let mut t = PhaseTime::default();
+        for p in &self.phases {
+            t.wall_ms += p.wall_ms;
+            t.cpu_ms += p.cpu_ms;
+        }
+        t
+    }
+
+    /// Time of one phase.
+    pub fn phase(&self, p: Phase) -> PhaseTime {
+        self.phases[p as usize]
+    }
+
+    /// Million primitives per thread-CPU-second, boxes to collapsed BVH.
+    pub fn mprims_per_cpu_s(&self) -> f64 {
+        let cpu = self.total().cpu_ms;
+        if cpu > 0.0 {
+            self.prims as f64 / cpu / 1e3
+        } else {
+            0.0
+        }
+    }
+
+    /// Million primitives per wall-clock second.
+    pub fn mprims_per_wall_s(&self) -> f64 {
+        let w = self.total().wall_ms;
+        if w > 0.0 {
+            self.prims as f64 / w / 1e3
+        } else {
+            0.0
+        }
+    }
+}
+
+/// A finished build.
+#[derive(Clone, Debug)]
+pub struct BuildOutput {
+    /// The collapsed BVH (depth-first order, root 0).
+    pub bvh: Bvh,
+    /// The primitive boxes it was built over (index = primitive id).
+    pub aabbs: Vec<Aabb>,
+    /// Timings and figures.
+    pub report: BuildReport,
+}
+
+/// CPU time of the calling thread in milliseconds (wall time where the platform has no
+/// per-thread clock).
+fn thread_cpu_ms() -> f64 {
+    #[cfg(unix)]
+    {
+        let mut ts = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: `ts` is a valid, writable timespec and CLOCK_THREAD_CPUTIME_ID is supported on
+        // every unix this builds for; the call only writes `ts`.
+        let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+        if rc == 0 {
+            return ts.tv_sec as f64 * 1e3 + ts.tv_nsec as f64 * 1e-6;
+        }
+    }
+    static START: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
+    START.get_or_init(Instant::now).elapsed().as_secs_f64() * 1e3
+}
+
+/// A local pool plus the phase clock.
+struct Timed {
+    pool: rayon::ThreadPool,
+    threads: usize,
+    phases: [PhaseTime; 6],
+}
+
+impl Timed {
+    fn new(threads: usize) -> Result<Timed, BuildError> {
+        if threads == 0 {
+            return Err(BuildError::ZeroThreads);
+        }
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .map_err(|e| BuildError::Pool {
+                threads,
+                msg: e.to_string(),
+            })?;
+        Ok(Timed {
+            pool,
+            threads,
+            phases: [PhaseTime::default(); 6],
+        })
+    }
+
+    /// CPU milliseconds of all pool threads so far.
+    fn pool_cpu(&self) -> f64 {
+        self.pool.broadcast(|_| thread_cpu_ms()).iter().sum()
+    }
+
+    /// Run `f` in the pool as phase `p` (time adds up if a phase runs twice).
+    fn run<R: Send>(&mut self, p: Phase, f: impl FnOnce() -> R + Send) -> R {
+        let c0 = self.pool_cpu();
+        let t0 = Instant::now();
+        let r = self.pool.install(f);
+        let wall = t0.elapsed().as_secs_f64() * 1e3;
+        let cpu = self.pool_cpu() - c0;
+        let slot = &mut self.phases[p as usize];
+        slot.wall_ms += wall;
+        slot.cpu_ms += cpu;
+        r
+    }
+}
+
+/// Scene bounds of the boxes by a parallel reduction in fixed chunks.
+pub fn scene_bounds(aabbs: &[Aabb]) -> Result<SceneBounds, emc_core::Error> {
+    aabbs
+        .par_chunks(CHUNK)
+        .enumerate()
+        .map(|(k, c)| SceneBounds::of(c, k * CHUNK))
+        .try_reduce(|| SceneBounds::EMPTY, |a, b| Ok(a.merge(&b)))
+}
+
+/// The encoder of `layout` for the boxes' frame (positions normalised to the centroid box).
+pub fn encoder_for(aabbs: &[Aabb], layout: &LayoutSpec) -> Result<Encoder, BuildError> {
+    if aabbs.is_empty() {
+        return Err(BuildError::Empty);
+    }
+    let frame = Frame::from_bounds(scene_bounds(aabbs)?, Normalization::CentroidBox)?;
+    Ok(Encoder::new(layout, &frame))
+}
+
+/// Codes of the boxes in parallel (64-bit words for every layout).
+pub fn encode_codes(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u64>, BuildError> {
+    let mut codes = vec![0u64; aabbs.len()];
+    codes
+        .par_chunks_mut(CHUNK)
+        .zip(aabbs.par_chunks(CHUNK))
+        .try_for_each(|(o, b)| enc.encode_batch(b, o))?;
+    Ok(codes)
+}
+
+/// Codes of the boxes as `u32` (layouts of at most 32 bits).
+fn encode_codes_u32(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u32>, BuildError> {
+    let mut codes = vec![0u32; aabbs.len()];
+    codes
+        .par_chunks_mut(CHUNK)
+        .zip(aabbs.par_chunks(CHUNK))
+        .try_for_each(|(o, b)| enc.encode_batch_u32(b, o))?;
+    Ok(codes)
+}
+
+/// Sort codes with their primitive ids: returns (sorted codes, ids in sorted order).
+pub fn sort_codes<K: RadixKey>(
+    mut keys: Vec<K>,
+) -> Result<(Vec<K>, Vec<u32>, SortReport), BuildError> {
+    let mut ids: Vec<u32> = (0..keys.len() as u32).collect();
+    let r = sort_pairs(&mut keys, &mut ids)?;
+    Ok((keys, ids, r))
+}
+
+/// The radix tree of sorted codes by the chosen LBVH builder, finished by the bottom-up pass
+/// (bounds, counts, collapse decisions). Not for [`Builder::BinnedSah`] (treated as `lbvh`).
+pub fn lbvh_tree<K: RadixKey>(
+    builder: Builder,
+    keys: &[K],
+    aabbs: &[Aabb],
+    order: &[u32],
+    k: &CollapseParams,
+) -> RadixTree {
+    match builder {
+        Builder::LbvhApetrei => build_apetrei(keys, aabbs, order, k),
+        _ => {
+            let t = build_karras(keys);
+            refit(&t, aabbs, order, k);
+            t
+        }
+    }
+}
+
+/// Build over a triangle mesh: every phase from triangle boxes on.
+pub fn build_scene(scene: &Scene, opts: &BuildOptions) -> Result<BuildOutput, BuildError> {
+    let mut timed = Timed::new(opts.threads)?;
+    let n = scene.indices.len();
+    if n == 0 {
+        return Err(BuildError::Empty);
+    }
+    let aabbs = timed.run(Phase::Aabb, || {
+        let mut out = vec![Aabb::EMPTY; n];
+        crate::aabbs::triangle_aabbs(&scene.vertices, &scene.indices, &mut out);
+        out
+    });
+    build_timed(timed, aabbs, opts)
+}
+
+/// Build over primitive boxes (the AABB phase is then 0).
+pub fn build_aabbs(aabbs: Vec<Aabb>, opts: &BuildOptions) -> Result<BuildOutput, BuildError> {
+    build_timed(Timed::new(opts.threads)?, aabbs, opts)
+}
+
+fn build_timed(
+    mut timed: Timed,
+    aabbs: Vec<Aabb>,
+    opts: &BuildOptions,
+) -> Result<BuildOutput, BuildError> {
+    let n = aabbs.len();
+    if n == 0 {
+        return Err(BuildError::Empty);
+    }
+    if n > MAX_PRIMS {
+        return Err(BuildError::TooMany(n));
+    }
+    if opts.collapse.max_leaf == 0 {
+        return Err(BuildError::ZeroLeafSize);
+    }
+    let k = opts.collapse;
+    if opts.builder == Builder::BinnedSah {
+        let ab = &aabbs;
+        timed.run(Phase::Encode, || scene_bounds(ab))?;
+        let plain = timed.run(Phase::Hierarchy, || build_binned_sah(ab, DEFAULT_BINS))?;
+        let bvh = timed.run(Phase::Collapse, || collapse_bvh(&plain, &k));
+        let headline = timed.pool.install(|| sah_headline(&plain));
+        return Ok(finish(
+            timed,
+            bvh,
+            aabbs,
+            opts,
+            None,
+            SortReport::default(),
+            headline,
+        ));
+    }
+    let ab = &aabbs;
+    let enc = timed.run(Phase::Encode, || encoder_for(ab, &opts.layout))?;
+    let layout = Some(enc.layout().to_string());
+    let (bvh, sort, headline) = if enc.layout().fits_u32() {
+        let codes = timed.run(Phase::Encode, || encode_codes_u32(&enc, ab))?;
+        lbvh_phases(&mut timed, codes, ab, opts)?
+    } else {
+        let codes = timed.run(Phase::Encode, || encode_codes(&enc, ab))?;
+        lbvh_phases(&mut timed, codes, ab, opts)?
+    };
+    Ok(finish(timed, bvh, aabbs, opts, layout, sort, headline))
+}
+
+/// Sort, hierarchy, bounds and collapse; returns the BVH, the sort report and the headline SAH.
+fn lbvh_phases<K: RadixKey>(
+    timed: &mut Timed,
+    codes: Vec<K>,
+    aabbs: &[Aabb],
+    opts: &BuildOptions,
+) -> Result<(Bvh, SortReport, f64), BuildError> {
+    let k = opts.collapse;
+    let (keys, order, sort) = timed.run(Phase::Sort, || sort_codes(codes))?;
+    let tree = match opts.builder {
+        Builder::LbvhApetrei => {
+            timed.run(Phase::Hierarchy, || build_apetrei(&keys, aabbs, &order, &k))
+        }
+        _ => {
+            let t = timed.run(Phase::Hierarchy, || build_karras(&keys));
+            timed.run(Phase::Bounds, || refit(&t, aabbs, &order, &k));
+            t
+        }
+    };
+    drop(keys);
+    let headline = timed.pool.install(|| tree.sah_headline(aabbs));
+    let (bvh, _depth) = timed.run(Phase::Collapse, || emit(&tree, aabbs, order));
+    timed.pool.install(move || drop(tree));
+    Ok((bvh, sort, headline))
+}
+
+fn finish(
+    timed: Timed,
+    bvh: Bvh,
+    aabbs: Vec<Aabb>,
+    opts: &BuildOptions,
+    layout: Option<String>,
+    sort: SortReport,
+    headline: f64,
+) -> BuildOutput {
+    let k = SahConstants {
+        ct: opts.collapse.ct,
+        ci: opts.collapse.ci,
+    };
+    let collapsed = sah_cost(&bvh, k);
+    let depth = bvh.depth();
+    let leaves = bvh.nodes.iter().filter(|n| n.is_leaf()).count();
+    let report = BuildReport {
+        prims: aabbs.len(),
+        threads: timed.threads,
+        builder: opts.builder,
+        layout,
+        phases: timed.phases,
+        sort,
+        nodes: bvh.nodes.len(),
+        leaves,
+        depth,
+        sah_headline: headline,
+        sah_collapsed: collapsed,
+    };
+    BuildOutput { bvh, aabbs, report }
+}

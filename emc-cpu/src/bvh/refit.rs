@@ -1,0 +1,288 @@
+//! The binary radix tree both LBVH hierarchy builders fill (Karras top-down, Apetrei bottom-up)
+//! and its parallel bottom-up pass: bounds, primitive counts and the optimal SAH-collapse
+//! decision per node, each node finished by the second child to arrive. Iterative only.
+
+use std::sync::atomic::{AtomicU32, AtomicU64, AtomicU8, Ordering};
+
+use emc_core::Aabb;
+use glam::Vec3;
+use rayon::prelude::*;
+
+use super::sah::area;
+
+/// "No node" in parent and child slots.
+pub const NONE: u32 = u32::MAX;
+
+/// Leaves handled per rayon task in the bottom-up passes.
+pub(crate) const LEAVES_PER_TASK: usize = 4096;
+
+/// Parameters of the SAH leaf collapse.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct CollapseParams {
+    /// Cost of an inner node (traversal), `Ct`.
+    pub ct: f64,
+    /// Cost of a primitive (intersection), `Ci`.
+    pub ci: f64,
+    /// Largest leaf the collapse may create (1 = keep one primitive per leaf).
+    pub max_leaf: u32,
+}
+
+impl Default for CollapseParams {
+    /// `Ct = 1.2`, `Ci = 1`, at most 8 primitives per leaf.
+    fn default() -> Self {
+        CollapseParams {
+            ct: 1.2,
+            ci: 1.0,
+            max_leaf: 8,
+        }
+    }
+}
+
+impl CollapseParams {
+    /// No collapse: one primitive per leaf.
+    pub const NONE: CollapseParams = CollapseParams {
+        ct: 1.0,
+        ci: 1.0,
+        max_leaf: 1,
+    };
+}
+
+/// What the bottom-up pass knows of one internal node once both children are done. Every field
+/// is an atomic written once (relaxed) by the finishing thread and published by the release half
+/// of the parent's arrival counter, so no `unsafe` is needed.
+#[derive(Debug, Default)]
+pub struct Slot {
+    bounds: [AtomicU32; 6],
+    cost: AtomicU64,
+    first: AtomicU32,
+    count: AtomicU32,
+    out: AtomicU32,
+}
+
+/// Plain copy of a finished [`Slot`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SlotData {
+    /// Union of the children's boxes.
+    pub bounds: Aabb,
+    /// Optimal collapsed SAH cost of the subtree (unnormalised).
+    pub cost: f64,
+    /// First sorted position under the node.
+    pub first: u32,
+    /// Primitives under the node.
+    pub count: u32,
+    /// Nodes the subtree emits after collapse (1 when it becomes a leaf).
+    pub out: u32,
+}
+
+impl Slot {
+    #[inline]
+    fn store(&self, d: &SlotData) {
+        let b = [
+            d.bounds.min.x,
+            d.bounds.min.y,
+            d.bounds.min.z,
+            d.bounds.max.x,
+            d.bounds.max.y,
+            d.bounds.max.z,
+        ];
+        for (a, v) in self.bounds.iter().zip(b) {
+            a.store(v.to_bits(), Ordering::Relaxed);
+        }
+        self.cost.store(d.cost.to_bits(), Ordering::Relaxed);
+        self.first.store(d.first, Ordering::Relaxed);
+        self.count.store(d.count, Ordering::Relaxed);
+        self.out.store(d.out, Ordering::Relaxed);
+    }
+
+    /// Read the slot (after the pass, or after acquiring the node's completion).
+    #[inline]
+    pub fn load(&self) -> SlotData {
+        let f = |i: usize| f32::from_bits(self.bounds[i].load(Ordering::Relaxed));
+        SlotData {
+            bounds: Aabb::new(Vec3::new(f(0), f(1), f(2)), Vec3::new(f(3), f(4), f(5))),
+            cost: f64::from_bits(self.cost.load(Ordering::Relaxed)),
+            first: self.first.load(Ordering::Relaxed),
+            count: self.count.load(Ordering::Relaxed),
+            out: self.out.load(Ordering::Relaxed),
+        }
+    }
+}
+
+/// A binary radix tree over `n` sorted leaves. Node ids: internal nodes `0..n−1`, leaf of sorted
+/// position `p` = `n − 1 + p` (so with one primitive the root is the leaf, id 0).
+#[derive(Debug)]
+pub struct RadixTree {
+    /// Number of leaves.
+    pub n: usize,
+    /// Children `[left, right]` of each internal node (node ids).
+    pub children: Vec<[AtomicU32; 2]>,
+    /// Parent of every node (internal then leaves); [`NONE`] for the root. Empty when the
+    /// builder does not need parent links (Apetrei).
+    pub parents: Vec<AtomicU32>,
+    /// Per-internal-node results of the bottom-up pass.
+    pub slots: Vec<Slot>,
+    /// Root node id.
+    pub root: u32,
+}
+
+/// Leaf box, count and cost of sorted position `p`.
+#[inline]
+pub(crate) fn leaf_data(aabbs: &[Aabb], order: &[u32], p: usize, k: &CollapseParams) -> SlotData {
+    let b = aabbs[order[p] as usize];
+    SlotData {
+        bounds: b,
+        cost: k.ci * area(&b),
+        first: p as u32,
+        count: 1,
+        out: 1,
+    }
+}
+
+impl RadixTree {
+    /// An empty tree shell for `n ≥ 1` leaves (children unset, slots zero).
+    pub(crate) fn with_leaves(n: usize, parents: bool) -> RadixTree {
+        let inner = n.saturating_sub(1);
+        let mk_children = || (0..inner).map(|_| [AtomicU32::new(NONE), AtomicU32::new(NONE)]);
+        RadixTree {
+            n,
+            children: mk_children().collect(),
+            parents: if parents {
+                (0..inner + n).map(|_| AtomicU32::new(NONE)).collect()
+            } else {
+                Vec::new()
+            },
+            slots: (0..inner).map(|_| Slot::default()).collect(),
+            root: 0,
+        }
+    }
+
+    /// Is node id `c` a leaf?
+    #[inline]
+    pub fn is_leaf(&self, c: u32) -> bool {
+        c as usize >= self.n - 1
+    }
+
+    /// Children of internal node `i`.
+    #[inline]
+    pub fn children_of(&self, i: u32) -> (u32, u32) {
+        let c = &self.children[i as usize];
+        (c[0].load(Ordering::Relaxed), c[1].load(Ordering::Relaxed))
+    }
+
+    /// Data of any node: a leaf from the primitive boxes, an internal node from its slot.
+    #[inline]
+    pub(crate) fn data(
+        &self,
+        c: u32,
+        aabbs: &[Aabb],
+        order: &[u32],
+        k: &CollapseParams,
+    ) -> SlotData {
+        if self.is_leaf(c) {
+            leaf_data(aabbs, order, c as usize - (self.n - 1), k)
+        } else {
+            self.slots[c as usize].load()
+        }
+    }
+
+    /// Finish internal node `i` from its two (finished) children and store the result.
+    #[inline]
+    pub(crate) fn finish(
+        &self,
+        i: u32,
+        l: u32,
+        r: u32,
+        aabbs: &[Aabb],
+        order: &[u32],
+        k: &CollapseParams,
+    ) {
+        let a = self.data(l, aabbs, order, k);
+        let b = self.data(r, aabbs, order, k);
+        self.slots[i as usize].store(&combine(&a, &b, k));
+    }
+
+    /// Bounds of the whole tree.
+    pub fn root_bounds(&self, aabbs: &[Aabb], order: &[u32]) -> Aabb {
+        self.data(self.root, aabbs, order, &CollapseParams::NONE)
+            .bounds
+    }
+
+    /// Headline SAH of the uncollapsed tree (`Ct = Ci = 1`, one primitive per leaf, root counted
+    /// as inner), summed in fixed-size chunks in a fixed order: independent of the thread count.
+    pub fn sah_headline(&self, aabbs: &[Aabb]) -> f64 {
+        const CH: usize = 1 << 15;
+        let inner: Vec<f64> = self
+            .slots
+            .par_chunks(CH)
+            .map(|c| c.iter().map(|s| area(&s.load().bounds)).sum())
+            .collect();
+        let leaves: Vec<f64> = aabbs
+            .par_chunks(CH)
+            .map(|c| c.iter().map(area).sum())
+            .collect();
+        let total = inner.iter().sum::<f64>() + leaves.iter().sum::<f64>();
+        let root = if self.n == 1 {
+            aabbs[0]
+        } else {
+            self.slots[self.root as usize].load().bounds
+        };
+        let ra = area(&root);
+        if ra > 0.0 {
+            total / ra
+        } else {
+            (self.slots.len() + self.n) as f64
+        }
+    }
+}
+
+/// Combine two finished children into their parent, deciding the optimal collapse: the subtree
+/// becomes one leaf when `ci·A·N < ct·A + cost(l) + cost(r)` and `N ≤ max_leaf`.
+#[inline]
+pub(crate) fn combine(a: &SlotData, b: &SlotData, k: &CollapseParams) -> SlotData {
+    let bounds = a.bounds.union(&b.bounds);
+    let ar = area(&bounds);
+    let count = a.count + b.count;
+    let split = k.ct * ar + a.cost + b.cost;
+    let as_leaf = k.ci * ar * count as f64;
+    let (cost, out) = if count <= k.max_leaf && as_leaf < split {
+        (as_leaf, 1)
+    } else {
+        (split, 1 + a.out + b.out)
+    };
+    SlotData {
+        bounds,
+        cost,
+        first: a.first.min(b.first),
+        count,
+        out,
+    }
+}
+
+/// Parallel bottom-up pass over a tree with parent links (Karras): one walk per leaf, stopping
+/// at the first arrival on each internal node; the second arrival finishes the node. Each
+/// arrival counter is a byte; the `AcqRel` increment publishes the child's slot to the finisher.
+pub fn refit(tree: &RadixTree, aabbs: &[Aabb], order: &[u32], k: &CollapseParams) {
+    let n = tree.n;
+    if n < 2 {
+        return;
+    }
+    let flags: Vec<AtomicU8> = (0..n - 1).map(|_| AtomicU8::new(0)).collect();
+    (0..n)
+        .into_par_iter()
+        .with_min_len(LEAVES_PER_TASK)
+        .for_each(|p| {
+            let mut cur = (n - 1 + p) as u32;
+            loop {
+                let parent = tree.parents[cur as usize].load(Ordering::Relaxed);
+                if parent == NONE {
+                    break;
+                }
+                if flags[parent as usize].fetch_add(1, Ordering::AcqRel) == 0 {
+                    break;
+                }
+                let (l, r) = tree.children_of(parent);
+                tree.finish(parent, l, r, aabbs, order, k);
+                cur = parent;
+            }
+        });
+}
