@@ -1,5 +1,7 @@
 //! The encoder: a resolved layout, its quantiser for one frame and the expansion backend chosen
-//! once, at construction. `encode_batch` is the product's hot path.
+//! once, at construction. `encode_batch` is the product's hot path: it runs the vectorised
+//! pipeline of [`crate::simd`] when the CPU allows, decided once here and reported by
+//! [`Encoder::pipeline`]; `encode` and `encode_batch_scalar` are the plain scalar path.
 
 use crate::aabb::Aabb;
 use crate::cpu;
@@ -8,6 +10,7 @@ use crate::expand::{Backend, Expander};
 use crate::frame::Frame;
 use crate::layout::{Layout, LayoutSpec};
 use crate::quantize::Quantizer;
+use crate::simd::{ExpandPath, Pipeline, QuantizePath};
 
 /// How an encoder's backend was chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -26,6 +29,9 @@ pub struct Encoder {
     expander: Expander,
     choice: Choice,
     reason: &'static str,
+    pipeline: Pipeline,
+    #[cfg(target_arch = "x86_64")]
+    kernel: Option<crate::simd::avx2::Kernel>,
 }
 
 impl Encoder {
@@ -57,26 +63,110 @@ impl Encoder {
         // Both branches ask for backends that always build on the CPU they were picked for.
         let expander =
             expander.unwrap_or_else(|| Expander::Table(crate::expand::table::Table::new(&layout)));
-        Encoder {
-            quant: Quantizer::new(&layout, frame),
-            layout,
-            expander,
-            choice: Choice::Auto,
-            reason,
-        }
+        Encoder::assemble(layout, frame, expander, Choice::Auto, reason)
     }
 
     /// An encoder with a forced backend; an error when that backend cannot serve the layout on
     /// this CPU (magic on an irregular pattern, pdep without BMI2).
     pub fn with_backend(layout: Layout, frame: &Frame, backend: Backend) -> Result<Encoder, Error> {
         let expander = Expander::new(backend, &layout).ok_or(Error::BackendUnavailable(backend))?;
-        Ok(Encoder {
-            quant: Quantizer::new(&layout, frame),
+        Ok(Encoder::assemble(
+            layout,
+            frame,
+            expander,
+            Choice::Forced,
+            "forced by the caller",
+        ))
+    }
+
+    /// Build the quantiser and pick the batch quantise path (AVX2 when present and every
+    /// channel has at most 31 bits).
+    fn assemble(
+        layout: Layout,
+        frame: &Frame,
+        expander: Expander,
+        choice: Choice,
+        reason: &'static str,
+    ) -> Encoder {
+        let quant = Quantizer::new(&layout, frame);
+        let mut e = Encoder {
+            pipeline: Pipeline {
+                quantize: QuantizePath::Scalar,
+                expand: ExpandPath::Scalar(expander.backend()),
+                quantize_reason: "no AVX2 on this CPU",
+            },
+            quant,
             layout,
             expander,
-            choice: Choice::Forced,
-            reason: "forced by the caller",
-        })
+            choice,
+            reason,
+            #[cfg(target_arch = "x86_64")]
+            kernel: None,
+        };
+        if cpu::detect().avx2 {
+            if e.set_quantize(QuantizePath::Avx2, "AVX2 present").is_err() {
+                e.pipeline.quantize_reason =
+                    "a channel has 32 bits, beyond the f64x4 to i32x4 truncation";
+            }
+        } else if !cfg!(target_arch = "x86_64") {
+            e.pipeline.quantize_reason = "no SIMD path for this architecture";
+        }
+        e
+    }
+
+    /// Switch the batch quantise path; an error (and no change) when it cannot serve this
+    /// layout here.
+    fn set_quantize(&mut self, path: QuantizePath, why: &'static str) -> Result<(), Error> {
+        match path {
+            QuantizePath::Scalar => {
+                #[cfg(target_arch = "x86_64")]
+                {
+                    self.kernel = None;
+                }
+                self.pipeline = Pipeline {
+                    quantize: QuantizePath::Scalar,
+                    expand: ExpandPath::Scalar(self.expander.backend()),
+                    quantize_reason: why,
+                };
+                Ok(())
+            }
+            #[cfg(target_arch = "x86_64")]
+            QuantizePath::Avx2 => {
+                let kernel = if cpu::detect().avx2 {
+                    crate::simd::avx2::Kernel::new(&self.quant)
+                } else {
+                    None
+                };
+                let kernel = kernel.ok_or(Error::QuantizeUnavailable(path))?;
+                self.kernel = Some(kernel);
+                self.pipeline = Pipeline {
+                    quantize: QuantizePath::Avx2,
+                    expand: match self.expander.backend() {
+                        Backend::Table => ExpandPath::TableLanes,
+                        Backend::Magic => ExpandPath::MagicAvx2,
+                        Backend::Pdep => ExpandPath::PdepLanes,
+                        Backend::Reference => ExpandPath::ReferenceLanes,
+                    },
+                    quantize_reason: why,
+                };
+                Ok(())
+            }
+            #[cfg(not(target_arch = "x86_64"))]
+            QuantizePath::Avx2 => Err(Error::QuantizeUnavailable(path)),
+        }
+    }
+
+    /// The same encoder with a forced batch quantise path (for tests and benchmarks); an error
+    /// when AVX2 is asked for and the CPU lacks it or a channel has 32 bits.
+    pub fn with_quantize(mut self, path: QuantizePath) -> Result<Encoder, Error> {
+        self.set_quantize(path, "forced by the caller")?;
+        Ok(self)
+    }
+
+    /// What `encode_batch` runs (quantise and expand paths) and why, decided at construction.
+    #[inline]
+    pub fn pipeline(&self) -> Pipeline {
+        self.pipeline
     }
 
     /// The concrete layout.
@@ -109,7 +199,7 @@ impl Encoder {
         self.choice
     }
 
-    /// Why this backend: one line.
+    /// Why this expansion backend: one line (see [`Encoder::pipeline`] for the quantise path).
     #[inline]
     pub fn reason(&self) -> &'static str {
         self.reason
@@ -133,8 +223,21 @@ impl Encoder {
         self.expander.compact(code)
     }
 
-    /// Encode a slice of boxes into the caller's buffer (same length).
+    /// Encode a slice of boxes into the caller's buffer (same length) with the dispatched
+    /// pipeline ([`Encoder::pipeline`]). Bit-identical to [`Encoder::encode`] on every box.
     pub fn encode_batch(&self, boxes: &[Aabb], out: &mut [u64]) -> Result<(), Error> {
+        if boxes.len() != out.len() {
+            return Err(Error::LengthMismatch(boxes.len(), out.len()));
+        }
+        let done = self.encode_lanes::<false>(boxes, out.as_mut_ptr() as *mut u8);
+        for (o, b) in out[done..].iter_mut().zip(&boxes[done..]) {
+            *o = self.encode(b);
+        }
+        Ok(())
+    }
+
+    /// [`Encoder::encode_batch`] forced onto the scalar path (one [`Encoder::encode`] per box).
+    pub fn encode_batch_scalar(&self, boxes: &[Aabb], out: &mut [u64]) -> Result<(), Error> {
         if boxes.len() != out.len() {
             return Err(Error::LengthMismatch(boxes.len(), out.len()));
         }
@@ -144,8 +247,24 @@ impl Encoder {
         Ok(())
     }
 
-    /// Encode a slice of boxes into `u32` codes; an error when the layout is wider than 32 bits.
+    /// Encode a slice of boxes into `u32` codes with the dispatched pipeline; an error when the
+    /// layout is wider than 32 bits.
     pub fn encode_batch_u32(&self, boxes: &[Aabb], out: &mut [u32]) -> Result<(), Error> {
+        if !self.layout.fits_u32() {
+            return Err(Error::CodeTooWide(self.layout.len()));
+        }
+        if boxes.len() != out.len() {
+            return Err(Error::LengthMismatch(boxes.len(), out.len()));
+        }
+        let done = self.encode_lanes::<true>(boxes, out.as_mut_ptr() as *mut u8);
+        for (o, b) in out[done..].iter_mut().zip(&boxes[done..]) {
+            *o = self.encode(b) as u32;
+        }
+        Ok(())
+    }
+
+    /// [`Encoder::encode_batch_u32`] forced onto the scalar path.
+    pub fn encode_batch_u32_scalar(&self, boxes: &[Aabb], out: &mut [u32]) -> Result<(), Error> {
         if !self.layout.fits_u32() {
             return Err(Error::CodeTooWide(self.layout.len()));
         }
@@ -156,5 +275,20 @@ impl Encoder {
             *o = self.encode(b) as u32;
         }
         Ok(())
+    }
+
+    /// Run the SIMD kernel over the leading multiple of four boxes; returns how many it
+    /// encoded (0 on the scalar path). `out` holds `boxes.len()` codes (`u32` when `W32`).
+    #[inline]
+    fn encode_lanes<const W32: bool>(&self, boxes: &[Aabb], out: *mut u8) -> usize {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(k) = &self.kernel {
+            // SAFETY: a kernel is only stored after `cpu::detect()` reported AVX2, and the
+            // pdep expander exists only when BMI2 is present; the callers checked that `out`
+            // holds `boxes.len()` codes of the width `W32` names.
+            return unsafe { k.encode::<W32>(&self.expander, boxes, out) };
+        }
+        let _ = (boxes, out);
+        0
     }
 }

@@ -34,6 +34,9 @@ pub enum Error {
     CodeTooWide(u32),
     /// A backend that was forced but cannot serve this layout on this CPU.
     BackendUnavailable(crate::Backend),
+    /// A quantise path that was forced but cannot serve this layout on this CPU (AVX2 needs
+    /// x86_64 with AVX2 and channels of at most 31 bits).
+    QuantizeUnavailable(crate::simd::QuantizePath),
 }
 
 impl fmt::Display for Error {
@@ -84,6 +87,11 @@ impl fmt::Display for Error {
             Error::BackendUnavailable(b) => {
                 write!(f, "backend {b} cannot serve this layout on this CPU")
             }
+            Error::QuantizeUnavailable(q) => write!(
+                f,
+                "quantize path {q} cannot serve this layout on this CPU (avx2 needs x86_64 \
+                 with AVX2 and channels of at most 31 bits)"
+            ),
         }
     }
 }

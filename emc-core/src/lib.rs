@@ -40,6 +40,7 @@ pub mod expand;
 mod frame;
 pub mod layout;
 pub mod quantize;
+pub mod simd;
 
 pub use aabb::Aabb;
 pub use encoder::{Choice, Encoder};
@@ -48,5 +49,6 @@ pub use expand::{Backend, Expander};
 pub use frame::{Frame, SceneBounds};
 pub use layout::{Channel, Layout, LayoutSpec, Normalization, Pattern, SizeTransform};
 pub use quantize::Quantizer;
+pub use simd::{ExpandPath, Pipeline, QuantizePath};
 
 pub use glam;

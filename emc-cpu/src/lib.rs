@@ -7,5 +7,6 @@ pub mod aabbs;
 pub mod build;
 pub mod bvh;
 pub mod cli;
+pub mod encode;
 pub mod scene;
 pub mod sort;

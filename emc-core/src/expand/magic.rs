@@ -51,6 +51,25 @@ impl Magic {
         })
     }
 
+    /// The period: number of interleaved channels (1..=4).
+    #[inline]
+    pub fn period(&self) -> u32 {
+        self.k
+    }
+
+    /// Bits per channel.
+    #[inline]
+    pub fn bits_per_channel(&self) -> u32 {
+        self.n
+    }
+
+    /// Per channel (x, y, z, s): the left shift of its spread inside a period, `None` when the
+    /// channel is not used.
+    #[inline]
+    pub fn shifts(&self) -> [Option<u32>; 4] {
+        self.shift.map(|s| if s == u32::MAX { None } else { Some(s) })
+    }
+
     /// Interleave channel values (x, y, z, s); bits above each channel's width are ignored.
     #[inline]
     pub fn expand(&self, q: [u64; 4]) -> u64 {

@@ -26,6 +26,12 @@ impl Pdep {
         }
     }
 
+    /// The per-channel masks (x, y, z, s).
+    #[inline]
+    pub fn masks(&self) -> [u64; 4] {
+        self.masks
+    }
+
     /// Interleave channel values (x, y, z, s); bits above each channel's width are ignored.
     #[inline]
     pub fn expand(&self, q: [u64; 4]) -> u64 {

@@ -102,6 +102,18 @@ impl Table {
         t
     }
 
+    /// `(channel index, byte index)` of each encoding table, in the order of [`Table::entries`].
+    #[inline]
+    pub fn slots(&self) -> &[(u8, u8)] {
+        &self.slots[..self.ntables]
+    }
+
+    /// The encoding tables: `entries()[i][v]` is the code bits of byte value `v` in slot `i`.
+    #[inline]
+    pub fn entries(&self) -> &[[u64; 256]] {
+        &self.enc[..self.ntables]
+    }
+
     /// Interleave channel values (x, y, z, s); bits above each channel's width are ignored.
     #[inline]
     pub fn expand(&self, q: [u64; 4]) -> u64 {

@@ -1,0 +1,578 @@
+//! AVX2 kernels of the batch pipeline (x86_64 only): four boxes per step in `f64` lanes, bit for
+//! bit the scalar arithmetic of [`crate::quantize`], then byte tables, `u64x4` magic spreads,
+//! `pdep` or the reference loop. Entered only after [`crate::cpu::detect`] reported AVX2.
+//!
+//! One step, four boxes `b0..b3` (24 `f32` each, `#[repr(C)]`: min xyz, max xyz):
+//!
+//! ```text
+//!   a_i = load f32x4 at b_i + 0  = [mnx mny mnz mxx]      b_i = load f32x4 at b_i + 8 bytes
+//!                                                            = [mnz mxx mxy mxz]
+//!   transpose a_0..a_3 → MNX MNY MNZ (f32x4),  b_0..b_3 → MXX MXY MXZ  (no lane crossing)
+//!   f64x4: c2 = MN + MX,  d = MX − MN,  d2 = (dx·dx + dy·dy) + dz·dz        (no FMA)
+//!   q_a   = cvtt(min(max((c2 − 2o)·(2^n/E/2), 0), 2^n − 1))   max(v, 0) maps NaN to 0
+//! ```
+
+use core::arch::x86_64::*;
+
+use crate::aabb::Aabb;
+use crate::expand::table::Table;
+use crate::expand::Expander;
+use crate::layout::SizeTransform;
+use crate::quantize::{Quantizer, MAX_THRESHOLD_BITS};
+
+/// No size channel.
+const SIZE_NONE: u8 = 0;
+/// Size by an `f32` estimate fixed up with two threshold comparisons (`S <= 8`).
+const SIZE_THRESH: u8 = 1;
+/// Size by the normative `f64` formula, sqrt transform.
+const SIZE_EXACT_SQRT: u8 = 2;
+/// Size by the normative `f64` formula, linear transform.
+const SIZE_EXACT_LINEAR: u8 = 3;
+
+/// Per-encoder constants of the AVX2 quantise step.
+#[derive(Clone, Debug)]
+pub(crate) struct Kernel {
+    /// `2·origin` per axis.
+    o2: [f64; 3],
+    /// `2^n / E / 2` per axis.
+    hs: [f64; 3],
+    /// `2^n − 1` per channel (x, y, z, s) as `f64` (exact: at most 31 bits).
+    maxf: [f64; 4],
+    /// One of the `SIZE_*` modes.
+    size_mode: u8,
+    /// `1 / D²` (only an estimate is derived from it).
+    inv_d2: f64,
+    /// `2^S` as `f32` and as `i32`.
+    s_scale_f32: f32,
+    s_top: i32,
+    /// All ones when the transform is linear (selects `rcp` over the second `rsqrt`).
+    linear: bool,
+    /// Frame diagonal `D` and `2^S` for the exact modes.
+    diag: f64,
+    s_scale: f64,
+    /// `pairs[b] = [T(b + 1), T(b + 2)]`, `T` the quantiser's thresholds, NaN past `2^S − 1`
+    /// (a NaN threshold never compares `<=`, so the count stops at `2^S − 1`).
+    pairs: [[f64; 2]; 256],
+}
+
+impl Kernel {
+    /// Constants for a quantiser, or `None` when a channel has more than 31 bits (the
+    /// `f64x4 → i32x4` truncation covers `[0, 2^31)`; such layouts stay scalar).
+    pub(crate) fn new(q: &Quantizer) -> Option<Kernel> {
+        let max = q.max();
+        if max.iter().any(|&m| m > i32::MAX as u64) {
+            return None;
+        }
+        let s = q.size_bits();
+        let mut k = Kernel {
+            o2: q.origin2(),
+            hs: q.half_scale(),
+            maxf: max.map(|m| m as f64),
+            size_mode: SIZE_NONE,
+            inv_d2: 1.0 / (q.diagonal() * q.diagonal()),
+            s_scale_f32: (1u32 << s.min(31)) as f32,
+            s_top: 1i32 << s.min(30),
+            linear: q.transform() == SizeTransform::Linear,
+            diag: q.diagonal(),
+            s_scale: crate::quantize::pow2(s),
+            pairs: [[f64::NAN; 2]; 256],
+        };
+        if s == 0 {
+            return Some(k);
+        }
+        match q.thresholds() {
+            Some(t) if s <= MAX_THRESHOLD_BITS => {
+                let at = |j: usize| t.get(j).copied().unwrap_or(f64::NAN);
+                for (b, p) in k.pairs.iter_mut().enumerate() {
+                    *p = [at(b + 1), at(b + 2)];
+                }
+                k.size_mode = SIZE_THRESH;
+            }
+            _ => {
+                k.size_mode = match q.transform() {
+                    SizeTransform::Sqrt => SIZE_EXACT_SQRT,
+                    SizeTransform::Linear => SIZE_EXACT_LINEAR,
+                };
+            }
+        }
+        Some(k)
+    }
+
+    /// Encode the first `4·⌊n/4⌋` boxes into `out` (codes as `u64`, or as `u32` when `W32`),
+    /// returning how many were encoded; the caller encodes the rest with the scalar path.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2 (and BMI2 when `exp` is the pdep expander); `out` must be
+    /// valid for `boxes.len()` writes of `u64` (or `u32` when `W32`).
+    pub(crate) unsafe fn encode<const W32: bool>(
+        &self,
+        exp: &Expander,
+        boxes: &[Aabb],
+        out: *mut u8,
+    ) -> usize {
+        let n4 = boxes.len() / 4;
+        let src = boxes.as_ptr() as *const f32;
+        macro_rules! by_size {
+            ($mode:expr, $s:ident => $e:expr) => {
+                match $mode {
+                    SIZE_NONE => {
+                        const $s: u8 = SIZE_NONE;
+                        $e
+                    }
+                    SIZE_THRESH => {
+                        const $s: u8 = SIZE_THRESH;
+                        $e
+                    }
+                    SIZE_EXACT_SQRT => {
+                        const $s: u8 = SIZE_EXACT_SQRT;
+                        $e
+                    }
+                    _ => {
+                        const $s: u8 = SIZE_EXACT_LINEAR;
+                        $e
+                    }
+                }
+            };
+        }
+        macro_rules! tables {
+            ($t:expr, $($nt:literal)*) => {
+                match $t.slots().len() {
+                    $($nt => by_size!(self.size_mode, S =>
+                        // SAFETY: AVX2 (+ BMI2 for pdep) and `out` by the caller; `n4` groups lie in `boxes`.
+                        unsafe {
+                        table_nt::<S, $nt, W32>(self, $t, src, n4, out)
+                    }),)*
+                    _ => 0,
+                }
+            };
+        }
+        match exp {
+            Expander::Table(t) => tables!(t, 1 2 3 4 5 6 7 8 9 10 11 12),
+            Expander::Magic(m) => {
+                let cnt = m.shifts().map(|s| s.unwrap_or(0) as i64);
+                match m.period() {
+                    1 => by_size!(self.size_mode, S =>
+                        // SAFETY: AVX2 (+ BMI2 for pdep) and `out` by the caller; `n4` groups lie in `boxes`.
+                        unsafe {
+                        run_magic::<S, 1, W32>(self, cnt, src, n4, out)
+                    }),
+                    2 => by_size!(self.size_mode, S =>
+                        // SAFETY: AVX2 (+ BMI2 for pdep) and `out` by the caller; `n4` groups lie in `boxes`.
+                        unsafe {
+                        run_magic::<S, 2, W32>(self, cnt, src, n4, out)
+                    }),
+                    3 => by_size!(self.size_mode, S =>
+                        // SAFETY: AVX2 (+ BMI2 for pdep) and `out` by the caller; `n4` groups lie in `boxes`.
+                        unsafe {
+                        run_magic::<S, 3, W32>(self, cnt, src, n4, out)
+                    }),
+                    4 => by_size!(self.size_mode, S =>
+                        // SAFETY: AVX2 (+ BMI2 for pdep) and `out` by the caller; `n4` groups lie in `boxes`.
+                        unsafe {
+                        run_magic::<S, 4, W32>(self, cnt, src, n4, out)
+                    }),
+                    _ => 0,
+                }
+            }
+            Expander::Pdep(_) => by_size!(self.size_mode, S =>
+                        // SAFETY: AVX2 (+ BMI2 for pdep) and `out` by the caller; `n4` groups lie in `boxes`.
+                        unsafe {
+                run_pdep::<S, W32>(self, exp, src, n4, out)
+            }),
+            Expander::Reference(_) => by_size!(self.size_mode, S =>
+                        // SAFETY: AVX2 (+ BMI2 for pdep) and `out` by the caller; `n4` groups lie in `boxes`.
+                        unsafe {
+                run_lanes::<S, W32>(self, exp, src, n4, out)
+            }),
+        }
+    }
+}
+
+/// Write one code.
+///
+/// # Safety
+/// `out` valid for index `i` of `u64` (or `u32` when `W32`).
+#[inline(always)]
+unsafe fn put<const W32: bool>(out: *mut u8, i: usize, code: u64) {
+    if W32 {
+        // SAFETY: by the contract above.
+        unsafe { (out as *mut u32).add(i).write_unaligned(code as u32) }
+    } else {
+        // SAFETY: by the contract above.
+        unsafe { (out as *mut u64).add(i).write_unaligned(code) }
+    }
+}
+
+/// One position channel: `cvtt(min(max((c2 − o2)·hs, 0), max))`.
+///
+/// `max_pd(v, 0)` returns its second operand when `v` is NaN, so NaN → 0 like the scalar
+/// saturating cast; on `[0, 2^n − 1]` truncation equals the scalar `trunc_sat(v).min(max)`
+/// (values above the maximum truncate to at least the maximum there, so both give it).
+#[target_feature(enable = "avx2")]
+#[inline]
+fn position(c2: __m256d, o2: f64, hs: f64, max: f64) -> __m128i {
+    let v = _mm256_mul_pd(_mm256_sub_pd(c2, _mm256_set1_pd(o2)), _mm256_set1_pd(hs));
+    let v = _mm256_max_pd(v, _mm256_setzero_pd());
+    let v = _mm256_min_pd(v, _mm256_set1_pd(max));
+    _mm256_cvttpd_epi32(v)
+}
+
+/// The low 32 bits of each `i64` lane of `v`, as `i32x4`.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn low_dwords(v: __m256i) -> __m128i {
+    let lo = _mm_castsi128_ps(_mm256_castsi256_si128(v));
+    let hi = _mm_castsi128_ps(_mm256_extracti128_si256::<1>(v));
+    _mm_castps_si128(_mm_shuffle_ps::<0b10_00_10_00>(lo, hi))
+}
+
+/// Quantise four boxes: `[qx, qy, qz, qs]`, each `i32x4` (`qs` is 0 when `SIZE` is none).
+///
+/// # Safety
+/// `p` must point at four consecutive `Aabb` (24 readable `f32`).
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn quantize4<const SIZE: u8>(k: &Kernel, p: *const f32) -> [__m128i; 4] {
+    // SAFETY: offsets 0..=22 + 4 lanes stay inside the 24 floats of the four boxes.
+    let (a0, b0, a1, b1, a2, b2, a3, b3) = unsafe {
+        (
+            _mm_loadu_ps(p),
+            _mm_loadu_ps(p.add(2)),
+            _mm_loadu_ps(p.add(6)),
+            _mm_loadu_ps(p.add(8)),
+            _mm_loadu_ps(p.add(12)),
+            _mm_loadu_ps(p.add(14)),
+            _mm_loadu_ps(p.add(18)),
+            _mm_loadu_ps(p.add(20)),
+        )
+    };
+    // a_i = [mnx mny mnz mxx]: columns 0, 1, 2.
+    let t0 = _mm_unpacklo_ps(a0, a1); // a0.0 a1.0 a0.1 a1.1
+    let t1 = _mm_unpacklo_ps(a2, a3); // a2.0 a3.0 a2.1 a3.1
+    let t2 = _mm_unpackhi_ps(a0, a1); // a0.2 a1.2 a0.3 a1.3
+    let t3 = _mm_unpackhi_ps(a2, a3); // a2.2 a3.2 a2.3 a3.3
+    let mnx = _mm_movelh_ps(t0, t1);
+    let mny = _mm_movehl_ps(t1, t0);
+    let mnz = _mm_movelh_ps(t2, t3);
+    // b_i = [mnz mxx mxy mxz]: columns 1, 2, 3.
+    let u0 = _mm_unpacklo_ps(b0, b1); // b0.0 b1.0 b0.1 b1.1
+    let u1 = _mm_unpacklo_ps(b2, b3); // b2.0 b3.0 b2.1 b3.1
+    let u2 = _mm_unpackhi_ps(b0, b1); // b0.2 b1.2 b0.3 b1.3
+    let u3 = _mm_unpackhi_ps(b2, b3); // b2.2 b3.2 b2.3 b3.3
+    let mxx = _mm_movehl_ps(u1, u0);
+    let mxy = _mm_movelh_ps(u2, u3);
+    let mxz = _mm_movehl_ps(u3, u2);
+
+    let (lx, ly, lz) = (
+        _mm256_cvtps_pd(mnx),
+        _mm256_cvtps_pd(mny),
+        _mm256_cvtps_pd(mnz),
+    );
+    let (hx, hy, hz) = (
+        _mm256_cvtps_pd(mxx),
+        _mm256_cvtps_pd(mxy),
+        _mm256_cvtps_pd(mxz),
+    );
+    let qx = position(_mm256_add_pd(lx, hx), k.o2[0], k.hs[0], k.maxf[0]);
+    let qy = position(_mm256_add_pd(ly, hy), k.o2[1], k.hs[1], k.maxf[1]);
+    let qz = position(_mm256_add_pd(lz, hz), k.o2[2], k.hs[2], k.maxf[2]);
+    if SIZE == SIZE_NONE {
+        return [qx, qy, qz, _mm_setzero_si128()];
+    }
+    let dx = _mm256_sub_pd(hx, lx);
+    let dy = _mm256_sub_pd(hy, ly);
+    let dz = _mm256_sub_pd(hz, lz);
+    let d2 = _mm256_add_pd(
+        _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)),
+        _mm256_mul_pd(dz, dz),
+    );
+    let qs = match SIZE {
+        // SAFETY: `pairs` lookups use indices in 0..=255 (see `size_thresholds`).
+        SIZE_THRESH => unsafe { size_thresholds(k, d2) },
+        SIZE_EXACT_SQRT => {
+            let v = _mm256_mul_pd(
+                _mm256_sqrt_pd(_mm256_div_pd(_mm256_sqrt_pd(d2), _mm256_set1_pd(k.diag))),
+                _mm256_set1_pd(k.s_scale),
+            );
+            clamp_trunc(v, k.maxf[3])
+        }
+        _ => {
+            let v = _mm256_div_pd(
+                _mm256_mul_pd(_mm256_sqrt_pd(d2), _mm256_set1_pd(k.s_scale)),
+                _mm256_set1_pd(k.diag),
+            );
+            clamp_trunc(v, k.maxf[3])
+        }
+    };
+    [qx, qy, qz, qs]
+}
+
+/// `cvtt(min(max(v, 0), max))`, the scalar `trunc_sat(v).min(max)` (see [`position`]).
+#[target_feature(enable = "avx2")]
+#[inline]
+fn clamp_trunc(v: __m256d, max: f64) -> __m128i {
+    let v = _mm256_max_pd(v, _mm256_setzero_pd());
+    _mm256_cvttpd_epi32(_mm256_min_pd(v, _mm256_set1_pd(max)))
+}
+
+/// The size channel for `S <= 8`, exactly [`Quantizer::size_by_thresholds`].
+///
+/// The exact value `q` is the number of thresholds `T(1..2^S)` with `T(j) <= d2`. An estimate
+/// `k` comes from `f32`: `ρ = clamp(d2 · (1/D²), 0, 1)`, `g = rsqrt(rsqrt(ρ))` (sqrt transform,
+/// `≈ ρ^¼`) or `rcp(rsqrt(ρ))` (linear, `≈ ρ^½`), `k = min(trunc(g · 2^S), 2^S)`.
+///
+/// Claim: `|k − q| <= 1`. Let `x = 2^S·ρ^e` (`e` = ¼ or ½) be the exact real value. The
+/// normative `f64` value differs from `x` by a few ulps (`< 2^-40` for `x <= 2^8`). The estimate:
+/// `ρ` carries a relative error below `2^-23` (two `f64` roundings and one `f32` rounding) or,
+/// for subnormal or flushed `f32`, an absolute error below `2^-126`; `rsqrtps` and `rcpps` have
+/// relative error at most `1.5·2^-12` each (both vendors' manuals), so `g` is within a relative
+/// `2^-10` of `ρ^e` (the first error enters halved or quartered), plus `2^S·2^-31` from the
+/// absolute case; scaling by `2^S` is exact. With `S <= 8` the estimate is within `2^-2 + 2^-23`
+/// of `x`. Two reals less than 1 apart have floors at most 1 apart, and the clamps (`q` to
+/// `2^S − 1`, `k` to `2^S`) keep that distance; for `ρ >= 1` both sides saturate (`q = 2^S − 1`,
+/// `k ∈ {2^S − 1, 2^S}`). So with `base = max(k − 1, 0)`, `q ∈ [base, base + 2]` and
+/// `q = base + [T(base + 1) <= d2] + [T(base + 2) <= d2]`, thresholds past `2^S − 1` being NaN.
+///
+/// # Safety
+/// Needs AVX2 (the caller's target feature).
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn size_thresholds(k: &Kernel, d2: __m256d) -> __m128i {
+    let r = _mm256_mul_pd(d2, _mm256_set1_pd(k.inv_d2));
+    let r = _mm256_min_pd(_mm256_max_pd(r, _mm256_setzero_pd()), _mm256_set1_pd(1.0));
+    let rf = _mm256_cvtpd_ps(r);
+    let y = _mm_rsqrt_ps(rf);
+    let lin = _mm_castsi128_ps(_mm_set1_epi32(-(k.linear as i32)));
+    let g = _mm_blendv_ps(_mm_rsqrt_ps(y), _mm_rcp_ps(y), lin);
+    let est = _mm_cvttps_epi32(_mm_mul_ps(g, _mm_set1_ps(k.s_scale_f32)));
+    let est = _mm_min_epi32(est, _mm_set1_epi32(k.s_top));
+    let base = _mm_max_epi32(_mm_sub_epi32(est, _mm_set1_epi32(1)), _mm_setzero_si128());
+    let mut b = [0i32; 4];
+    // SAFETY: `b` holds four i32.
+    unsafe { _mm_storeu_si128(b.as_mut_ptr() as *mut __m128i, base) };
+    // `base` is in 0..=2^S − 1 <= 255: the pair loads stay inside `pairs`.
+    let pp = k.pairs.as_ptr() as *const f64;
+    // SAFETY: each index is in 0..=255 (clamped above), each pair is two f64.
+    let (p0, p1, p2, p3) = unsafe {
+        (
+            _mm_loadu_pd(pp.add(2 * (b[0] as usize & 255))),
+            _mm_loadu_pd(pp.add(2 * (b[1] as usize & 255))),
+            _mm_loadu_pd(pp.add(2 * (b[2] as usize & 255))),
+            _mm_loadu_pd(pp.add(2 * (b[3] as usize & 255))),
+        )
+    };
+    let lo = _mm256_set_m128d(p2, p0); // T1_0 T2_0 T1_2 T2_2
+    let hi = _mm256_set_m128d(p3, p1); // T1_1 T2_1 T1_3 T2_3
+    let t1 = _mm256_unpacklo_pd(lo, hi); // T1_0 T1_1 T1_2 T1_3
+    let t2 = _mm256_unpackhi_pd(lo, hi);
+    let m1 = _mm256_castpd_si256(_mm256_cmp_pd::<_CMP_LE_OQ>(t1, d2));
+    let m2 = _mm256_castpd_si256(_mm256_cmp_pd::<_CMP_LE_OQ>(t2, d2));
+    // Each mask lane is 0 or −1: base − m1 − m2.
+    _mm_sub_epi32(base, low_dwords(_mm256_add_epi64(m1, m2)))
+}
+
+/// Byte-table expansion of `n4` groups with exactly `NT` tables.
+///
+/// # Safety
+/// AVX2; `src` holds `4·n4` boxes; `out` valid for `4·n4` codes.
+#[target_feature(enable = "avx2")]
+unsafe fn table_nt<const SIZE: u8, const NT: usize, const W32: bool>(
+    k: &Kernel,
+    t: &Table,
+    src: *const f32,
+    n4: usize,
+    out: *mut u8,
+) -> usize {
+    let Ok(tabs) = <&[[u64; 256]; NT]>::try_from(t.entries()) else {
+        return 0;
+    };
+    // Lanes are stored as four i32x4 (x, y, z, s): byte j of channel c, lane l is at
+    // 16c + 4l + j. Each slot's offset for lane 0:
+    let mut offs = [0usize; NT];
+    for (o, &(c, j)) in offs.iter_mut().zip(t.slots()) {
+        *o = 16 * (c as usize & 3) + (j as usize & 3);
+    }
+    let mut buf = [0u8; 64];
+    for g in 0..n4 {
+        // SAFETY: group g is boxes 4g..4g+4 of `src`.
+        let q = unsafe { quantize4::<SIZE>(k, src.add(24 * g)) };
+        let bp = buf.as_mut_ptr() as *mut __m128i;
+        // SAFETY: `buf` is 64 bytes, four 16-byte stores.
+        unsafe {
+            _mm_storeu_si128(bp, q[0]);
+            _mm_storeu_si128(bp.add(1), q[1]);
+            _mm_storeu_si128(bp.add(2), q[2]);
+            _mm_storeu_si128(bp.add(3), q[3]);
+        }
+        for l in 0..4 {
+            let mut code = 0u64;
+            for i in 0..NT {
+                // SAFETY: offs[i] <= 51 and 4l <= 12, inside the 64-byte buffer.
+                let byte = unsafe { *buf.as_ptr().add(offs[i] + 4 * l) };
+                code |= tabs[i][byte as usize];
+            }
+            // SAFETY: index 4g + l < 4·n4.
+            unsafe { put::<W32>(out, 4 * g + l, code) };
+        }
+    }
+    4 * n4
+}
+
+/// `(x | x << S) & m` on four `u64` lanes.
+#[target_feature(enable = "avx2")]
+#[inline]
+fn stage<const S: i32>(x: __m256i, m: u64) -> __m256i {
+    _mm256_and_si256(
+        _mm256_or_si256(x, _mm256_slli_epi64::<S>(x)),
+        _mm256_set1_epi64x(m as i64),
+    )
+}
+
+/// The spreads of [`crate::expand::magic`] on four `u64` lanes (values already within width).
+#[target_feature(enable = "avx2")]
+#[inline]
+fn spread<const K: u32>(x: __m256i) -> __m256i {
+    match K {
+        1 => x,
+        2 => {
+            let x = stage::<16>(x, 0x0000_FFFF_0000_FFFF);
+            let x = stage::<8>(x, 0x00FF_00FF_00FF_00FF);
+            let x = stage::<4>(x, 0x0F0F_0F0F_0F0F_0F0F);
+            let x = stage::<2>(x, 0x3333_3333_3333_3333);
+            stage::<1>(x, 0x5555_5555_5555_5555)
+        }
+        3 => {
+            let x = stage::<32>(x, 0x001F_0000_0000_FFFF);
+            let x = stage::<16>(x, 0x001F_0000_FF00_00FF);
+            let x = stage::<8>(x, 0x100F_00F0_0F00_F00F);
+            let x = stage::<4>(x, 0x10C3_0C30_C30C_30C3);
+            stage::<2>(x, 0x1249_2492_4924_9249)
+        }
+        _ => {
+            let x = stage::<24>(x, 0x0000_00FF_0000_00FF);
+            let x = stage::<12>(x, 0x000F_000F_000F_000F);
+            let x = stage::<6>(x, 0x0303_0303_0303_0303);
+            stage::<3>(x, 0x1111_1111_1111_1111)
+        }
+    }
+}
+
+/// Magic-bits expansion of `n4` groups for a regular pattern of period `K`.
+///
+/// # Safety
+/// AVX2; `src` holds `4·n4` boxes; `out` valid for `4·n4` codes.
+#[target_feature(enable = "avx2")]
+unsafe fn run_magic<const SIZE: u8, const K: u32, const W32: bool>(
+    k: &Kernel,
+    shifts: [i64; 4],
+    src: *const f32,
+    n4: usize,
+    out: *mut u8,
+) -> usize {
+    let cnt = shifts.map(|s| _mm_cvtsi64_si128(s & 63));
+    for g in 0..n4 {
+        // SAFETY: group g is boxes 4g..4g+4 of `src`.
+        let q = unsafe { quantize4::<SIZE>(k, src.add(24 * g)) };
+        // Unused channels quantise to 0 (maximum 0) and add nothing.
+        let mut code = _mm256_sll_epi64(spread::<K>(_mm256_cvtepu32_epi64(q[0])), cnt[0]);
+        code = _mm256_or_si256(
+            code,
+            _mm256_sll_epi64(spread::<K>(_mm256_cvtepu32_epi64(q[1])), cnt[1]),
+        );
+        code = _mm256_or_si256(
+            code,
+            _mm256_sll_epi64(spread::<K>(_mm256_cvtepu32_epi64(q[2])), cnt[2]),
+        );
+        if SIZE != SIZE_NONE {
+            code = _mm256_or_si256(
+                code,
+                _mm256_sll_epi64(spread::<K>(_mm256_cvtepu32_epi64(q[3])), cnt[3]),
+            );
+        }
+        if W32 {
+            // SAFETY: four u32 codes at 4g..4g+4 are inside `out`.
+            unsafe {
+                _mm_storeu_si128(
+                    (out as *mut u32).add(4 * g) as *mut __m128i,
+                    low_dwords(code),
+                )
+            };
+        } else {
+            // SAFETY: four u64 codes at 4g..4g+4 are inside `out`.
+            unsafe { _mm256_storeu_si256((out as *mut u64).add(4 * g) as *mut __m256i, code) };
+        }
+    }
+    4 * n4
+}
+
+/// `pdep` expansion of each lane.
+///
+/// # Safety
+/// AVX2 and BMI2; `src` holds `4·n4` boxes; `out` valid for `4·n4` codes.
+#[target_feature(enable = "avx2,bmi2")]
+#[allow(clippy::needless_range_loop)] // `l` picks the same lane from each channel's row
+unsafe fn run_pdep<const SIZE: u8, const W32: bool>(
+    k: &Kernel,
+    exp: &Expander,
+    src: *const f32,
+    n4: usize,
+    out: *mut u8,
+) -> usize {
+    let Expander::Pdep(p) = exp else {
+        return 0;
+    };
+    let m = p.masks();
+    let mut buf = [[0u32; 4]; 4];
+    for g in 0..n4 {
+        // SAFETY: group g is boxes 4g..4g+4 of `src`.
+        let q = unsafe { quantize4::<SIZE>(k, src.add(24 * g)) };
+        for (b, v) in buf.iter_mut().zip(q) {
+            // SAFETY: each row of `buf` holds four u32.
+            unsafe { _mm_storeu_si128(b.as_mut_ptr() as *mut __m128i, v) };
+        }
+        for l in 0..4 {
+            let code = _pdep_u64(buf[0][l] as u64, m[0])
+                | _pdep_u64(buf[1][l] as u64, m[1])
+                | _pdep_u64(buf[2][l] as u64, m[2])
+                | _pdep_u64(buf[3][l] as u64, m[3]);
+            // SAFETY: index 4g + l < 4·n4.
+            unsafe { put::<W32>(out, 4 * g + l, code) };
+        }
+    }
+    4 * n4
+}
+
+/// Any other expander, called once per lane (the forced reference backend).
+///
+/// # Safety
+/// AVX2; `src` holds `4·n4` boxes; `out` valid for `4·n4` codes.
+#[target_feature(enable = "avx2")]
+#[allow(clippy::needless_range_loop)] // `l` picks the same lane from each channel's row
+unsafe fn run_lanes<const SIZE: u8, const W32: bool>(
+    k: &Kernel,
+    exp: &Expander,
+    src: *const f32,
+    n4: usize,
+    out: *mut u8,
+) -> usize {
+    let mut buf = [[0u32; 4]; 4];
+    for g in 0..n4 {
+        // SAFETY: group g is boxes 4g..4g+4 of `src`.
+        let q = unsafe { quantize4::<SIZE>(k, src.add(24 * g)) };
+        for (b, v) in buf.iter_mut().zip(q) {
+            // SAFETY: each row of `buf` holds four u32.
+            unsafe { _mm_storeu_si128(b.as_mut_ptr() as *mut __m128i, v) };
+        }
+        for l in 0..4 {
+            let code = exp.expand([
+                buf[0][l] as u64,
+                buf[1][l] as u64,
+                buf[2][l] as u64,
+                buf[3][l] as u64,
+            ]);
+            // SAFETY: index 4g + l < 4·n4.
+            unsafe { put::<W32>(out, 4 * g + l, code) };
+        }
+    }
+    4 * n4
+}

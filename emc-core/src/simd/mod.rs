@@ -1,0 +1,89 @@
+//! The vectorised batch pipeline: quantise four boxes at a time in `f64` lanes, then expand.
+//! Which path runs is decided once, when an [`Encoder`](crate::Encoder) is built, and described
+//! by a [`Pipeline`]. Every path equals the scalar normative arithmetic of [`crate::quantize`].
+//!
+//! ```text
+//!   &[Aabb] ──4 boxes──► quantize (scalar | avx2 f64x4) ──q[x,y,z,s]──► expand (backend) ──► codes
+//!                                                                         n % 4 tail: scalar
+//! ```
+
+use core::fmt;
+
+use crate::expand::Backend;
+
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx2;
+
+/// How a batch quantises its boxes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum QuantizePath {
+    /// One box at a time with [`Quantizer::quantize`](crate::Quantizer::quantize).
+    Scalar,
+    /// Four boxes at a time in AVX2 `f64` lanes (x86_64 with AVX2 only).
+    Avx2,
+}
+
+impl QuantizePath {
+    /// The lower-case name (`scalar`, `avx2`).
+    pub fn name(self) -> &'static str {
+        match self {
+            QuantizePath::Scalar => "scalar",
+            QuantizePath::Avx2 => "avx2",
+        }
+    }
+}
+
+impl fmt::Display for QuantizePath {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        f.write_str(self.name())
+    }
+}
+
+/// How a batch expands quantised values into codes after the quantise step.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum ExpandPath {
+    /// The backend's scalar `expand`, one code at a time.
+    Scalar(Backend),
+    /// Byte tables read with scalar loads from the four quantised lanes.
+    TableLanes,
+    /// Shift/mask spreads on four `u64` AVX2 lanes (regular patterns).
+    MagicAvx2,
+    /// BMI2 `pdep` on each of the four quantised lanes.
+    PdepLanes,
+    /// The reference bit loop on each lane (forced reference backend).
+    ReferenceLanes,
+}
+
+impl fmt::Display for ExpandPath {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            ExpandPath::Scalar(b) => write!(f, "{b}"),
+            ExpandPath::TableLanes => f.write_str("table (byte tables, scalar loads per lane)"),
+            ExpandPath::MagicAvx2 => f.write_str("magic (avx2 u64x4 shift/mask spreads)"),
+            ExpandPath::PdepLanes => f.write_str("pdep (one per channel and lane)"),
+            ExpandPath::ReferenceLanes => f.write_str("reference (bit loop per lane)"),
+        }
+    }
+}
+
+/// What `encode_batch` runs: the quantise path, the expand path and why.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Pipeline {
+    /// The quantise step.
+    pub quantize: QuantizePath,
+    /// The expand step.
+    pub expand: ExpandPath,
+    /// Why the quantise path was chosen (one clause).
+    pub quantize_reason: &'static str,
+}
+
+impl fmt::Display for Pipeline {
+    /// For example `quantize: avx2 f64x4; expand: table (byte tables, scalar loads per lane)`.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self.quantize {
+            QuantizePath::Avx2 => write!(f, "quantize: avx2 f64x4")?,
+            QuantizePath::Scalar => write!(f, "quantize: scalar f64")?,
+        }
+        write!(f, " ({}); expand: {}", self.quantize_reason, self.expand)
+    }
+}
