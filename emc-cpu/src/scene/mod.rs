@@ -47,6 +47,14 @@ pub enum SceneError {
         /// What the reader or the zstd decoder said.
         source: std::io::Error,
     },
+    /// Writing a scene file failed.
+    #[error("cannot write scene file {path}: {source}")]
+    Write {
+        /// The file being written.
+        path: PathBuf,
+        /// What the writer or the zstd encoder said.
+        source: std::io::Error,
+    },
     /// A malformed line (bad number, too few fields, index 0 or out of range, bad UTF-8).
     #[error("{path}:{line}: {message}")]
     Malformed {

@@ -147,9 +147,48 @@ fn assemble(models: Vec<tobj::Model>, path: &Path, name: String) -> Result<Scene
     })
 }
 
+/// Write a scene as OBJ (`v` and `f` lines only; zstd-compressed when the name ends in
+/// `.zst`, with a 128 MiB window like the largest shared scene). Coordinates are printed in
+/// the shortest form that reads back to the same `f32`, so [`load_obj_file`] returns the same
+/// triangles (vertices may be renumbered in order of first use).
+pub fn save_obj(scene: &Scene, path: &Path) -> Result<(), SceneError> {
+    use std::io::Write;
+    let io = |e| SceneError::Write {
+        path: path.to_path_buf(),
+        source: e,
+    };
+    let file = std::fs::File::create(path).map_err(io)?;
+    let write_all = |w: &mut dyn Write| -> std::io::Result<()> {
+        writeln!(w, "# {}", scene.name)?;
+        for v in &scene.vertices {
+            writeln!(w, "v {} {} {}", v.x, v.y, v.z)?;
+        }
+        for t in &scene.indices {
+            writeln!(w, "f {} {} {}", t[0] + 1, t[1] + 1, t[2] + 1)?;
+        }
+        Ok(())
+    };
+    if path.extension().is_some_and(|e| e == "zst") {
+        let mut enc = zstd::stream::write::Encoder::new(file, 3).map_err(io)?;
+        enc.window_log(ZSTD_WINDOW_LOG_MAX).map_err(io)?;
+        enc.long_distance_matching(true).map_err(io)?;
+        let mut buf = std::io::BufWriter::new(enc);
+        write_all(&mut buf).map_err(io)?;
+        let enc = buf.into_inner().map_err(|e| io(e.into_error()))?;
+        enc.finish().map_err(io)?;
+    } else {
+        let mut buf = std::io::BufWriter::new(file);
+        write_all(&mut buf).map_err(io)?;
+        buf.flush().map_err(io)?;
+    }
+    Ok(())
+}
+
 /// Counts of the elements defined so far (OBJ indices refer to them).
 #[derive(Default)]
 struct Counts {
+    /// Whether the first `v` line had r g b colours (`tobj` needs all or none).
+    coloured: Option<bool>,
     v: usize,
     vt: usize,
     vn: usize,
@@ -202,6 +241,14 @@ fn check_line(line: &[u8], c: &mut Counts) -> Result<(), String> {
             match n {
                 0..=2 => Err(format!("vertex: expected 3 coordinates, found {n}")),
                 3 | 6 => {
+                    let coloured = n == 6;
+                    if *c.coloured.get_or_insert(coloured) != coloured {
+                        return Err(format!(
+                            "vertex: r g b colours must be on every vertex or none (first \
+                             vertex {} them)",
+                            if coloured { "lacks" } else { "has" }
+                        ));
+                    }
                     c.v += 1;
                     Ok(())
                 }
@@ -267,6 +314,9 @@ fn check_line(line: &[u8], c: &mut Counts) -> Result<(), String> {
 /// Check one `v`, `v/vt`, `v//vn` or `v/vt/vn` reference against the counts so far.
 #[inline]
 fn check_ref(t: &[u8], c: &Counts) -> Result<(), String> {
+    if t.iter().filter(|&&b| b == b'/').count() > 2 {
+        return Err(format!("`{}` has more than three `/` parts", show(t)));
+    }
     let mut parts = t.split(|&b| b == b'/');
     let kinds = [
         ("vertex", c.v),
@@ -301,9 +351,6 @@ fn check_ref(t: &[u8], c: &Counts) -> Result<(), String> {
                 show(t)
             ));
         }
-    }
-    if parts.next().is_some() {
-        return Err(format!("`{}` has more than three `/` parts", show(t)));
     }
     Ok(())
 }
