@@ -10,7 +10,9 @@
 //! ```
 //!
 //! Halving by 2 commutes with f64 rounding, so this equals `((lo+hi)/2 − o) · 2^n/E` bit for
-//! bit: one multiply by the precomputed `2^n / E`, floor, clamp to `[0, 2^n − 1]`. A zero
+//! bit: one multiply by the precomputed `2^n / E`, floor, clamp to `[0, 2^n − 1]`. The
+//! precomputed scale is `2^n / E` rounded to nearest; only for channels wider than 52 bits is it
+//! raised by a few ulps so that the max face still reaches `2^n − 1` ([`position_scale`]). A zero
 //! extent gives the scale 0 and the value 0. Truncation equals floor on the values that survive
 //! the clamp, so a centre on the max face gives `2^n − 1` and never wraps to 0.
 //!
@@ -45,6 +47,23 @@ pub fn pow2(n: u32) -> f64 {
     libm::ldexp(1.0, n as i32)
 }
 
+/// The position scale of an axis with `n > 0` bits and extent `e > 0`: `2^n / e` rounded to
+/// nearest, then raised by the fewest ulps that make the max face (`e · scale`, the exact
+/// product of the same subtraction the position path computes) truncate to at least
+/// `2^n − 1`. For `n ≤ 52` the raise never happens: `fl(e · fl(2^n / e)) ≥ 2^n (1 − 2^-52)`
+/// truncates to at least `2^n − 1`. For wider channels (a line or needle scene gives one axis
+/// up to 64 bits) plain rounding can land `e · scale` a few f64 ulps below `2^n`, which would
+/// truncate the max face to `2^n − 2^(n−53)` instead of `2^n − 1`.
+#[inline]
+pub fn position_scale(n: u32, e: f64) -> f64 {
+    let max = u64::MAX >> (64 - n);
+    let mut s = pow2(n) / e;
+    while trunc_sat(e * s) < max {
+        s = s.next_up();
+    }
+    s
+}
+
 /// The per-frame, per-layout constants of quantisation.
 #[derive(Clone, Debug)]
 pub struct Quantizer {
@@ -71,7 +90,7 @@ impl Quantizer {
             let n = layout.bits(Channel::from_index(a));
             origin2[a] = 2.0 * o[a];
             half_scale[a] = if e[a] > 0.0 && n > 0 {
-                (pow2(n) / e[a]) * 0.5
+                position_scale(n, e[a]) * 0.5
             } else {
                 0.0
             };
