@@ -198,7 +198,9 @@ pub fn restructure(bvh: &mut Bvh, aabbs: &[Aabb], cfg: &AtrConfig) -> Result<Atr
         }
         let counters: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(0)).collect();
         for it in 0..cfg.iterations {
-            counters.par_iter().for_each(|c| c.store(0, Ordering::Relaxed));
+            counters
+                .par_iter()
+                .for_each(|c| c.store(0, Ordering::Relaxed));
             let pass = Pass {
                 nodes: SharedSlice::new(&mut bvh.nodes),
                 aux: SharedSlice::new(&mut aux),
@@ -216,6 +218,16 @@ pub fn restructure(bvh: &mut Bvh, aabbs: &[Aabb], cfg: &AtrConfig) -> Result<Atr
             stats.treelets_improved += improved;
             stats.per_iteration.push((formed, improved));
         }
+    }
+    if n <= 1 {
+        // A lone leaf: no inner node to restructure; refit its box like every other leaf.
+        if let Some(root) = bvh.nodes.first_mut() {
+            let (f, c) = (root.first() as usize, root.count() as usize);
+            root.bounds = bvh.prim_indices[f..f + c]
+                .iter()
+                .fold(Aabb::EMPTY, |b, &p| b.union(&aabbs[p as usize]));
+        }
+        stats.per_iteration = vec![(0, 0); cfg.iterations as usize];
     }
     stats.sah_after = sah_cost(bvh, k);
     Ok(stats)
@@ -443,7 +455,7 @@ impl Pass<'_> {
         }
         // Merge `m` (0-based) goes to slot `slots[k - 2 - m]`: the last merge is the root `p`.
         let mut merges = [(Aabb::EMPTY, 0u32, 0u32, 0.0f64, 0u32); M - 1];
-        for m in 0..k - 1 {
+        for (m, merge) in merges.iter_mut().enumerate().take(k - 1) {
             let (mut bi, mut bj, mut bd) = (usize::MAX, usize::MAX, f64::INFINITY);
             for i in 0..k {
                 if !alive[i] {
@@ -458,10 +470,11 @@ impl Pass<'_> {
             let b = boxes[bi].union(&boxes[bj]);
             let c = self.ct * b.area_f64() + costs[bi] + costs[bj];
             let slot = t.slots[k - 2 - m];
-            merges[m] = (b, refs[bi], refs[bj], c, counts[bi].saturating_add(counts[bj]));
+            let count = counts[bi].saturating_add(counts[bj]);
+            *merge = (b, refs[bi], refs[bj], c, count);
             boxes[bi] = b;
             costs[bi] = c;
-            counts[bi] = merges[m].4;
+            counts[bi] = count;
             refs[bi] = slot;
             alive[bj] = false;
             for o in 0..k {
