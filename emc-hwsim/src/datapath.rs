@@ -1,0 +1,834 @@
+//! The unit's datapath: configuration registers loaded per layout and frame, the named pipeline
+//! stages they instantiate (only those the configuration needs), and the stage operations that
+//! compute every code — fp64 adders and multipliers, float→fixed, size comparators or the
+//! sqrt/divide path, and the routing network — without calling emc-core's encoder.
+
+use core::fmt;
+
+use emc_core::{Aabb, Channel, Frame, Layout, LayoutSpec, Quantizer, SizeTransform};
+
+use crate::error::HwError;
+use crate::fixed::{compare_key, exp_add, float_to_fixed};
+use crate::routing::{field_offsets, layout_permutation, morton_wires, Benes, Crossbar};
+
+/// Which interleave hardware to build.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum RoutingChoice {
+    /// Fixed wiring for `morton30`/`morton63`, a Beneš network for everything else.
+    #[default]
+    Auto,
+    /// Fixed Morton wiring (only for `morton30`/`morton63`).
+    Fixed,
+    /// A Beneš network (2 pipeline cycles).
+    Benes,
+    /// A full crossbar (1 pipeline cycle).
+    Crossbar,
+}
+
+impl core::str::FromStr for RoutingChoice {
+    type Err = String;
+    fn from_str(s: &str) -> Result<Self, String> {
+        match s {
+            "auto" => Ok(RoutingChoice::Auto),
+            "fixed" => Ok(RoutingChoice::Fixed),
+            "benes" => Ok(RoutingChoice::Benes),
+            "crossbar" => Ok(RoutingChoice::Crossbar),
+            _ => Err(format!(
+                "unknown routing {s:?} (expected auto, fixed, benes or crossbar)"
+            )),
+        }
+    }
+}
+
+/// How the threshold size unit finds the count of thresholds below `d2`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
+pub enum SizeSearch {
+    /// `S` pipelined binary-search steps, one comparator each.
+    #[default]
+    Binary,
+    /// `2^S − 1` comparators in parallel plus a population count (2 cycles).
+    Bank,
+}
+
+/// Knobs of the unit that do not come from the scene.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct UnitOptions {
+    /// Parallel datapath lanes (codes accepted per cycle at most).
+    pub lanes: u32,
+    /// Interleave hardware.
+    pub routing: RoutingChoice,
+    /// Threshold search structure (layouts with `1 <= S <= 8`).
+    pub size_search: SizeSearch,
+    /// Use an iterative (non-pipelined, II = latency) sqrt/divide unit instead of a pipelined
+    /// one on the formula size path (`S > 8`, e.g. `emc64-sort`).
+    pub iterative_formula: bool,
+    /// Input buffer capacity in AABBs.
+    pub input_capacity: u32,
+    /// Output FIFO capacity in codes.
+    pub output_capacity: u32,
+    /// AABBs per read burst (24 bytes each).
+    pub read_burst: u32,
+    /// Bytes per write burst (a multiple of the code size is used).
+    pub write_burst_bytes: u32,
+}
+
+impl Default for UnitOptions {
+    fn default() -> Self {
+        UnitOptions {
+            lanes: 1,
+            routing: RoutingChoice::Auto,
+            size_search: SizeSearch::Binary,
+            iterative_formula: false,
+            input_capacity: 256,
+            output_capacity: 32,
+            read_burst: 8,
+            write_burst_bytes: 64,
+        }
+    }
+}
+
+/// The size channel as instantiated.
+#[derive(Clone, Debug, PartialEq)]
+pub enum SizeUnit {
+    /// No size bits: the whole size path is absent.
+    None,
+    /// `1 <= S <= 8`: `2^S − 1` threshold registers on `d2` (comparator keys; index 0 unused).
+    Thresholds {
+        /// Size bits `S`.
+        bits: u32,
+        /// `keys[k]` = bit pattern of the smallest `d2` whose size value is `>= k`.
+        keys: Vec<u64>,
+    },
+    /// `S > 8`: fp64 sqrt and divide in the normative order.
+    Formula {
+        /// Size bits `S`.
+        bits: u32,
+        /// Linear (`sqrt(d2)·2^S / D`) or sqrt (`sqrt(sqrt(d2) / D)·2^S`).
+        transform: SizeTransform,
+        /// Frame diagonal `D`.
+        diag: f64,
+    },
+}
+
+/// The interleave as instantiated.
+#[derive(Clone, Debug, PartialEq)]
+pub enum Network {
+    /// Morton wires `(xyz)^n`: no logic, no configuration.
+    Fixed {
+        /// Bits per axis.
+        per_axis: u32,
+    },
+    /// A Beneš network with per-frame control bits.
+    Benes(Benes),
+    /// A crossbar with per-frame selects.
+    Crossbar(Crossbar),
+}
+
+impl Network {
+    /// Short name.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Network::Fixed { .. } => "fixed wiring",
+            Network::Benes(_) => "Beneš network",
+            Network::Crossbar(_) => "crossbar",
+        }
+    }
+}
+
+/// Configuration registers of one unit for one layout and frame.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Registers {
+    /// Axes with at least one bit (their position lane is instantiated).
+    pub axis_on: [bool; 3],
+    /// `2·origin` per axis (subtracted from `lo + hi`).
+    pub origin2: [f64; 3],
+    /// `2^n / E / 2` per axis (0 on a flat axis).
+    pub half_scale: [f64; 3],
+    /// Bits per channel (x, y, z, s).
+    pub bits: [u32; 4],
+    /// Field offsets of the packed routing word.
+    pub offset: [u32; 4],
+    /// Code length in bits.
+    pub len: u32,
+    /// Size channel.
+    pub size: SizeUnit,
+    /// Interleave.
+    pub net: Network,
+}
+
+/// `2^n` for `n <= 64`, built from its exponent field (exact).
+fn pow2(n: u32) -> f64 {
+    f64::from_bits((1023 + n as u64) << 52)
+}
+
+impl Registers {
+    /// Load the registers from a resolved layout and its frame, as a host driver would.
+    pub fn load(layout: &Layout, frame: &Frame, opts: &UnitOptions) -> Result<Registers, HwError> {
+        let bits = layout.bit_counts();
+        let o = frame.origin();
+        let e = frame.extent();
+        let mut origin2 = [0.0; 3];
+        let mut half_scale = [0.0; 3];
+        let mut axis_on = [false; 3];
+        for a in 0..3 {
+            axis_on[a] = bits[a] > 0;
+            origin2[a] = 2.0 * o[a];
+            half_scale[a] = if e[a] > 0.0 && bits[a] > 0 {
+                (pow2(bits[a]) / e[a]) * 0.5
+            } else {
+                0.0
+            };
+        }
+        let s = bits[3];
+        let size = if s == 0 {
+            SizeUnit::None
+        } else if let Some(t) = Quantizer::new(layout, frame).thresholds() {
+            SizeUnit::Thresholds {
+                bits: s,
+                keys: t.iter().map(|v| v.to_bits()).collect(),
+            }
+        } else {
+            SizeUnit::Formula {
+                bits: s,
+                transform: layout.transform(),
+                diag: frame.diagonal(),
+            }
+        };
+        let len = layout.len();
+        let fixed_layout = match layout.spec() {
+            LayoutSpec::Morton30 => Some(10),
+            LayoutSpec::Morton63 => Some(21),
+            _ => None,
+        };
+        let lanes_k = if len <= 32 { 5 } else { 6 };
+        let perm = layout_permutation(layout);
+        let net = match (opts.routing, fixed_layout) {
+            (RoutingChoice::Auto | RoutingChoice::Fixed, Some(n)) => Network::Fixed { per_axis: n },
+            (RoutingChoice::Fixed, None) => {
+                return Err(HwError::NotFixedLayout(layout.spec().to_string()))
+            }
+            (RoutingChoice::Auto | RoutingChoice::Benes, _) => {
+                Network::Benes(Benes::route(&perm, lanes_k))
+            }
+            (RoutingChoice::Crossbar, _) => Network::Crossbar(Crossbar::new(&perm, 1 << lanes_k)),
+        };
+        Ok(Registers {
+            axis_on,
+            origin2,
+            half_scale,
+            bits,
+            offset: field_offsets(bits),
+            len,
+            size,
+            net,
+        })
+    }
+
+    /// Size bits (0 when the size path is absent).
+    pub fn size_bits(&self) -> u32 {
+        self.bits[3]
+    }
+}
+
+/// What a stage does (its operation on the token, applied when the stage completes).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Op {
+    /// Split the 24-byte record into `lo` and `hi` (a register stage).
+    Unpack,
+    /// `c2 = lo + hi` per active axis ∥ size: `Δ = hi − lo`.
+    Centre,
+    /// `c2 − 2·origin` ∥ size: `Δ²`.
+    Offset,
+    /// `× half_scale` ∥ size: `Δx² + Δy²`.
+    Scale,
+    /// float→fixed with clamp per active axis ∥ size: `+ Δz²`.
+    Fix,
+    /// Binary threshold search, step `k` (stride `2^(S−1−k)`).
+    SearchStep(u32),
+    /// Comparator bank and population count.
+    Bank,
+    /// fp64 square root of `d2`.
+    Sqrt,
+    /// `× 2^S` by exponent add.
+    SizeScale,
+    /// fp64 divide by `D`.
+    Div,
+    /// fp64 square root of `d / D` (sqrt transform).
+    Sqrt2,
+    /// float→fixed with clamp of the size value.
+    SizeFix,
+    /// Pack fields and pass network columns `from..to` (Beneš) or the whole crossbar.
+    Route(u8, u8),
+    /// Write the code word (fixed wiring happens here: it is only wires).
+    Pack,
+}
+
+/// One named pipeline stage.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Stage {
+    /// Name in the structure printout.
+    pub name: &'static str,
+    /// Cycles from entry to result.
+    pub latency: u32,
+    /// Initiation interval (cycles between accepted tokens).
+    pub ii: u32,
+    /// Operation applied on completion.
+    pub op: Op,
+    /// What hardware the stage instantiates (for the printout).
+    pub hw: String,
+}
+
+/// Latency of the 3-stage fp64 adder and multiplier (DesignWare-class, 1 GHz at 40 nm).
+pub const FP_LATENCY: u32 = 3;
+/// Latency of a pipelined fp64 square root or divider (multiplicative, assumed).
+pub const SQRT_DIV_PIPELINED_LATENCY: u32 = 12;
+/// Latency (= initiation interval) of an iterative radix-4 fp64 square root or divider.
+pub const SQRT_DIV_ITERATIVE_LATENCY: u32 = 28;
+
+/// The intermediate values a token carries down the pipeline.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Token {
+    /// Primitive index (for ordering checks).
+    pub index: u64,
+    lo: [f32; 3],
+    hi: [f32; 3],
+    c2: [f64; 3],
+    dl: [f64; 3],
+    acc: f64,
+    d2: f64,
+    q: [u64; 4],
+    pos: u64,
+    sd: f64,
+    word: u64,
+}
+
+impl Token {
+    /// A token for a box entering the unit.
+    pub fn new(index: u64, b: &Aabb) -> Token {
+        Token {
+            index,
+            lo: b.min.to_array(),
+            hi: b.max.to_array(),
+            ..Token::default()
+        }
+    }
+
+    /// The finished code (valid after the pack stage).
+    pub fn code(&self) -> u64 {
+        self.word
+    }
+}
+
+/// A configured unit: registers plus the stage list they instantiate.
+#[derive(Clone, Debug)]
+pub struct Unit {
+    regs: Registers,
+    stages: Vec<Stage>,
+    opts: UnitOptions,
+    layout: Layout,
+}
+
+impl Unit {
+    /// Configure a unit for a layout in a frame.
+    pub fn new(layout: &Layout, frame: &Frame, opts: &UnitOptions) -> Result<Unit, HwError> {
+        if opts.lanes == 0 {
+            return Err(HwError::NoLanes(0));
+        }
+        let regs = Registers::load(layout, frame, opts)?;
+        let stages = build_stages(&regs, opts);
+        Ok(Unit {
+            regs,
+            stages,
+            opts: *opts,
+            layout: *layout,
+        })
+    }
+
+    /// Configure a unit for a layout name, resolving adaptive layouts against the frame.
+    pub fn for_spec(spec: &LayoutSpec, frame: &Frame, opts: &UnitOptions) -> Result<Unit, HwError> {
+        Unit::new(&spec.resolve(frame.extent()), frame, opts)
+    }
+
+    /// The registers.
+    pub fn registers(&self) -> &Registers {
+        &self.regs
+    }
+
+    /// The instantiated stages, in pipeline order.
+    pub fn stages(&self) -> &[Stage] {
+        &self.stages
+    }
+
+    /// The options the unit was built with.
+    pub fn options(&self) -> &UnitOptions {
+        &self.opts
+    }
+
+    /// The layout.
+    pub fn layout(&self) -> &Layout {
+        &self.layout
+    }
+
+    /// Pipeline depth in cycles (sum of stage latencies).
+    pub fn depth(&self) -> u32 {
+        self.stages.iter().map(|s| s.latency).sum()
+    }
+
+    /// Initiation interval of one lane (the largest stage II).
+    pub fn lane_ii(&self) -> u32 {
+        self.stages.iter().map(|s| s.ii).max().unwrap_or(1)
+    }
+
+    /// Bytes per code word written (4 for codes of at most 32 bits, else 8).
+    pub fn code_bytes(&self) -> u32 {
+        if self.regs.len <= 32 {
+            4
+        } else {
+            8
+        }
+    }
+
+    /// Apply one stage's operation to a token.
+    #[inline]
+    pub fn apply(&self, op: Op, t: &mut Token) {
+        let r = &self.regs;
+        let size = !matches!(r.size, SizeUnit::None);
+        match op {
+            Op::Unpack => {}
+            Op::Centre => {
+                for a in 0..3 {
+                    if r.axis_on[a] {
+                        t.c2[a] = t.lo[a] as f64 + t.hi[a] as f64;
+                    }
+                    if size {
+                        t.dl[a] = t.hi[a] as f64 - t.lo[a] as f64;
+                    }
+                }
+            }
+            Op::Offset => {
+                for a in 0..3 {
+                    if r.axis_on[a] {
+                        t.c2[a] -= r.origin2[a];
+                    }
+                    if size {
+                        t.dl[a] *= t.dl[a];
+                    }
+                }
+            }
+            Op::Scale => {
+                for a in 0..3 {
+                    if r.axis_on[a] {
+                        t.c2[a] *= r.half_scale[a];
+                    }
+                }
+                if size {
+                    t.acc = t.dl[0] + t.dl[1];
+                }
+            }
+            Op::Fix => {
+                for a in 0..3 {
+                    if r.axis_on[a] {
+                        t.q[a] = float_to_fixed(t.c2[a], r.bits[a]);
+                    }
+                }
+                if size {
+                    t.d2 = t.acc + t.dl[2];
+                }
+            }
+            Op::SearchStep(k) => {
+                if let SizeUnit::Thresholds { bits, keys } = &r.size {
+                    let stride = 1u64 << (bits - 1 - k);
+                    let key = compare_key(t.d2);
+                    t.pos += stride * (keys[(t.pos + stride) as usize] <= key) as u64;
+                    t.q[3] = t.pos;
+                }
+            }
+            Op::Bank => {
+                if let SizeUnit::Thresholds { keys, .. } = &r.size {
+                    let key = compare_key(t.d2);
+                    t.q[3] = keys[1..].iter().filter(|&&k| k <= key).count() as u64;
+                }
+            }
+            Op::Sqrt => t.sd = t.d2.sqrt(),
+            Op::SizeScale => t.sd = exp_add(t.sd, r.bits[3]),
+            Op::Div => {
+                if let SizeUnit::Formula { diag, .. } = r.size {
+                    t.sd /= diag;
+                }
+            }
+            Op::Sqrt2 => t.sd = t.sd.sqrt(),
+            Op::SizeFix => t.q[3] = float_to_fixed(t.sd, r.bits[3]),
+            Op::Route(from, to) => {
+                if from == 0 {
+                    t.word = self.packed(&t.q);
+                }
+                match &r.net {
+                    Network::Benes(b) => {
+                        t.word = b.apply_columns(t.word, from as usize..to as usize)
+                    }
+                    Network::Crossbar(x) => t.word = x.apply(t.word),
+                    Network::Fixed { .. } => {}
+                }
+            }
+            Op::Pack => {
+                if let Network::Fixed { .. } = r.net {
+                    t.word = morton_wires(t.q[0], t.q[1], t.q[2]);
+                }
+            }
+        }
+    }
+
+    /// The packed routing word: each channel value in its field (the float→fixed shifters
+    /// write there directly in the unit).
+    #[inline(always)]
+    fn packed(&self, q: &[u64; 4]) -> u64 {
+        let mut w = 0u64;
+        for (c, &v) in q.iter().enumerate() {
+            if self.regs.bits[c] > 0 {
+                w |= v << self.regs.offset[c];
+            }
+        }
+        w
+    }
+
+    /// The code of one box: every stage's operation in pipeline order (the fast mode's
+    /// datapath; the same operations the cycle-stepped mode applies stage by stage).
+    #[inline]
+    pub fn code(&self, b: &Aabb) -> u64 {
+        let mut t = Token::new(0, b);
+        for s in &self.stages {
+            self.apply(s.op, &mut t);
+        }
+        t.word
+    }
+
+    /// Codes of a slice of boxes through the datapath (specialised loops for the common
+    /// configurations; identical results to [`Unit::code`], which the tests check).
+    pub fn codes(&self, boxes: &[Aabb], out: &mut Vec<u64>) {
+        out.clear();
+        out.reserve(boxes.len());
+        match (&self.regs.size, &self.regs.net) {
+            (SizeUnit::None, Network::Fixed { .. }) => {
+                out.extend(boxes.iter().map(|b| self.fast_code::<false, true>(b)))
+            }
+            (SizeUnit::Thresholds { .. }, Network::Benes(_)) => {
+                out.extend(boxes.iter().map(|b| self.fast_code::<true, false>(b)))
+            }
+            (SizeUnit::None, Network::Benes(_)) => {
+                out.extend(boxes.iter().map(|b| self.fast_code::<false, false>(b)))
+            }
+            _ => out.extend(boxes.iter().map(|b| self.code(b))),
+        }
+    }
+
+    /// The datapath with the stage sequence unrolled for a threshold-or-absent size unit and
+    /// a fixed or Beneš network.
+    #[inline(always)]
+    fn fast_code<const THRESH: bool, const FIXED: bool>(&self, b: &Aabb) -> u64 {
+        let r = &self.regs;
+        let lo = b.min.to_array();
+        let hi = b.max.to_array();
+        let mut q = [0u64; 4];
+        for a in 0..3 {
+            if r.axis_on[a] {
+                let v = ((lo[a] as f64 + hi[a] as f64) - r.origin2[a]) * r.half_scale[a];
+                q[a] = float_to_fixed(v, r.bits[a]);
+            }
+        }
+        if THRESH {
+            if let SizeUnit::Thresholds { bits, keys } = &r.size {
+                let dx = hi[0] as f64 - lo[0] as f64;
+                let dy = hi[1] as f64 - lo[1] as f64;
+                let dz = hi[2] as f64 - lo[2] as f64;
+                let key = compare_key((dx * dx + dy * dy) + dz * dz);
+                let mut pos = 0u64;
+                for k in 0..*bits {
+                    let stride = 1u64 << (bits - 1 - k);
+                    pos += stride * (keys[(pos + stride) as usize] <= key) as u64;
+                }
+                q[3] = pos;
+            }
+        }
+        if FIXED {
+            morton_wires(q[0], q[1], q[2])
+        } else if let Network::Benes(n) = &r.net {
+            n.apply(self.packed(&q))
+        } else {
+            unreachable!("fast_code is only instantiated for fixed and Beneš networks")
+        }
+    }
+}
+
+/// The stage list a configuration instantiates.
+fn build_stages(r: &Registers, opts: &UnitOptions) -> Vec<Stage> {
+    let axes: usize = r.axis_on.iter().filter(|&&o| o).count();
+    let size = !matches!(r.size, SizeUnit::None);
+    let mut v = Vec::new();
+    let st = |name, latency, ii, op, hw: String| Stage {
+        name,
+        latency,
+        ii,
+        op,
+        hw,
+    };
+    v.push(st(
+        "unpack",
+        1,
+        1,
+        Op::Unpack,
+        "192-bit input register".into(),
+    ));
+    let sz = |s: &str| {
+        if size {
+            format!(" ∥ size: {s}")
+        } else {
+            String::new()
+        }
+    };
+    v.push(st(
+        "centre",
+        FP_LATENCY,
+        1,
+        Op::Centre,
+        format!("{axes}× fp64 add (lo+hi){}", sz("3× fp64 sub (hi−lo)")),
+    ));
+    v.push(st(
+        "offset",
+        FP_LATENCY,
+        1,
+        Op::Offset,
+        format!("{axes}× fp64 sub (−2·origin){}", sz("3× fp64 mul (Δ²)")),
+    ));
+    v.push(st(
+        "scale",
+        FP_LATENCY,
+        1,
+        Op::Scale,
+        format!("{axes}× fp64 mul (×scale/2){}", sz("1× fp64 add")),
+    ));
+    v.push(st(
+        "float→fixed",
+        if size { FP_LATENCY } else { 1 },
+        1,
+        Op::Fix,
+        format!(
+            "{axes}× float→fixed+clamp (64-bit field shifter){}",
+            sz("1× fp64 add (d²)")
+        ),
+    ));
+    match &r.size {
+        SizeUnit::None => {}
+        SizeUnit::Thresholds { bits, .. } => match opts.size_search {
+            SizeSearch::Binary => {
+                const NAMES: [&str; 8] = [
+                    "size.search0",
+                    "size.search1",
+                    "size.search2",
+                    "size.search3",
+                    "size.search4",
+                    "size.search5",
+                    "size.search6",
+                    "size.search7",
+                ];
+                for k in 0..*bits {
+                    v.push(st(
+                        NAMES[k as usize],
+                        1,
+                        1,
+                        Op::SearchStep(k),
+                        format!(
+                            "63-bit comparator + {}:1 threshold mux",
+                            1u32 << k.min(*bits)
+                        ),
+                    ));
+                }
+            }
+            SizeSearch::Bank => v.push(st(
+                "size.bank",
+                2,
+                1,
+                Op::Bank,
+                format!("{}× 63-bit comparator + popcount", (1u32 << bits) - 1),
+            )),
+        },
+        SizeUnit::Formula { transform, .. } => {
+            let (lat, ii, kind) = if opts.iterative_formula {
+                (
+                    SQRT_DIV_ITERATIVE_LATENCY,
+                    SQRT_DIV_ITERATIVE_LATENCY,
+                    "iterative",
+                )
+            } else {
+                (SQRT_DIV_PIPELINED_LATENCY, 1, "pipelined")
+            };
+            v.push(st(
+                "size.sqrt",
+                lat,
+                ii,
+                Op::Sqrt,
+                format!("fp64 sqrt ({kind})"),
+            ));
+            match transform {
+                SizeTransform::Linear => {
+                    v.push(st(
+                        "size.×2^S",
+                        1,
+                        1,
+                        Op::SizeScale,
+                        "11-bit exponent adder".into(),
+                    ));
+                    v.push(st(
+                        "size.div",
+                        lat,
+                        ii,
+                        Op::Div,
+                        format!("fp64 divide by D ({kind})"),
+                    ));
+                }
+                SizeTransform::Sqrt => {
+                    v.push(st(
+                        "size.div",
+                        lat,
+                        ii,
+                        Op::Div,
+                        format!("fp64 divide by D ({kind})"),
+                    ));
+                    v.push(st(
+                        "size.sqrt2",
+                        lat,
+                        ii,
+                        Op::Sqrt2,
+                        format!("fp64 sqrt ({kind})"),
+                    ));
+                    v.push(st(
+                        "size.×2^S",
+                        1,
+                        1,
+                        Op::SizeScale,
+                        "11-bit exponent adder".into(),
+                    ));
+                }
+            }
+            v.push(st(
+                "size.fix",
+                1,
+                1,
+                Op::SizeFix,
+                "float→fixed+clamp".into(),
+            ));
+        }
+    }
+    match &r.net {
+        Network::Fixed { .. } => {}
+        Network::Benes(b) => {
+            let c = b.columns() as u8;
+            let h = c.div_ceil(2);
+            v.push(st(
+                "route.0",
+                1,
+                1,
+                Op::Route(0, h),
+                format!("Beneš columns 0..{h} of {c} ({} lanes)", b.lanes()),
+            ));
+            v.push(st(
+                "route.1",
+                1,
+                1,
+                Op::Route(h, c),
+                format!("Beneš columns {h}..{c}"),
+            ));
+        }
+        Network::Crossbar(x) => v.push(st(
+            "route",
+            1,
+            1,
+            Op::Route(0, 0),
+            format!("{0}×{0} crossbar", x.lanes()),
+        )),
+    }
+    v.push(st(
+        "pack",
+        1,
+        1,
+        Op::Pack,
+        match r.net {
+            Network::Fixed { per_axis } => format!("code register (Morton wires, 3×{per_axis})"),
+            _ => "code register".into(),
+        },
+    ));
+    v
+}
+
+impl fmt::Display for Unit {
+    /// The structure printout: instantiated stages, pruned parts and registers.
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let r = &self.regs;
+        writeln!(
+            f,
+            "unit for {} ({}), {} lane(s), depth {} cycles, lane II {}",
+            self.layout.spec(),
+            self.layout,
+            self.opts.lanes,
+            self.depth(),
+            self.lane_ii()
+        )?;
+        let mut at = 0;
+        for s in &self.stages {
+            writeln!(
+                f,
+                "  {:<14} cycles {:>2}..{:<2} lat {:>2} II {:>2}  {}",
+                s.name,
+                at,
+                at + s.latency,
+                s.latency,
+                s.ii,
+                s.hw
+            )?;
+            at += s.latency;
+        }
+        let mut pruned = Vec::new();
+        for (a, c) in [Channel::X, Channel::Y, Channel::Z].iter().enumerate() {
+            if !r.axis_on[a] {
+                pruned.push(format!("{c} position lane (0 bits)"));
+            }
+        }
+        if matches!(r.size, SizeUnit::None) {
+            pruned.push("size path (0 size bits)".into());
+        }
+        if matches!(r.net, Network::Fixed { .. }) {
+            pruned.push("routing network (fixed layout: wires only)".into());
+        }
+        if !pruned.is_empty() {
+            writeln!(f, "  not instantiated: {}", pruned.join(", "))?;
+        }
+        write!(
+            f,
+            "  registers: origin2/scale on {} axes",
+            r.axis_on.iter().filter(|&&o| o).count()
+        )?;
+        match &r.size {
+            SizeUnit::None => {}
+            SizeUnit::Thresholds { bits, .. } => {
+                write!(f, ", {} size thresholds on d² (63-bit)", (1u32 << bits) - 1)?
+            }
+            SizeUnit::Formula { transform, .. } => {
+                write!(f, ", D and S for the {transform} size formula")?
+            }
+        }
+        match &r.net {
+            Network::Fixed { .. } => writeln!(f, ", no routing state"),
+            Network::Benes(b) => writeln!(
+                f,
+                ", Beneš {} control bits ({} columns × {} switches)",
+                b.control_bits(),
+                b.columns(),
+                b.switches_per_column()
+            ),
+            Network::Crossbar(x) => writeln!(
+                f,
+                ", crossbar {} select bits",
+                x.lanes() * x.lanes().trailing_zeros()
+            ),
+        }
+    }
+}
