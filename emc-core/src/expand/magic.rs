@@ -91,7 +91,7 @@ impl Magic {
         code
     }
 
-    /// Split a code back into channel values.
+    /// Split a code back into channel values (bits above the layout width are ignored).
     #[inline]
     pub fn compact(&self, code: u64) -> [u64; 4] {
         let mut q = [0u64; 4];
@@ -101,12 +101,14 @@ impl Magic {
                 continue;
             }
             let v = code >> s;
+            // The gathers take every k-th bit of the whole word; masking to the channel width
+            // drops code bits above the layout width, as every other decoder does.
             *qc = match self.k {
-                1 => v & low_mask(self.n),
+                1 => v,
                 2 => compact2(v),
                 3 => compact3(v),
                 _ => compact4(v),
-            };
+            } & low_mask(self.n);
         }
         q
     }
