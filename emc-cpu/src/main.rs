@@ -10,11 +10,16 @@ struct Cli {
 }
 
 #[derive(Subcommand, Debug)]
-enum Verb {}
+enum Verb {
+    /// Build a BVH over a scene and print per-phase timings, tree shape and SAH.
+    Build(emc_cpu::cli::build::BuildArgs),
+}
 
 fn main() {
     let cli = Cli::parse();
-    let result: anyhow::Result<()> = match cli.verb {};
+    let result: anyhow::Result<()> = match cli.verb {
+        Verb::Build(a) => emc_cpu::cli::build::run(&a),
+    };
     if let Err(e) = result {
         eprintln!("emc: {e:#}");
         std::process::exit(1);

@@ -1,1 +1,3 @@
 //! The verbs of the `emc` binary, one module each; `main.rs` only parses and dispatches.
+
+pub mod build;

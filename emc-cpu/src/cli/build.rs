@@ -1,0 +1,154 @@
+//! `emc build`: load a scene, run the build pipeline on a local pool and print per-phase wall and
+//! thread-CPU milliseconds, throughput, tree shape and both SAH figures.
+
+use anyhow::{bail, Context};
+use emc_core::LayoutSpec;
+
+use crate::build::{build_scene, BuildOptions, BuildOutput, Builder, Phase};
+use crate::bvh::refit::CollapseParams;
+use crate::scene::{load_with, SceneOptions};
+
+/// Arguments of `emc build`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct BuildArgs {
+    /// A scene file (`.obj`, `.obj.zst`), a shared scene name, or `builtin:NAME`.
+    pub scene: String,
+    /// Code layout: morton30, morton63, emc64-sort, emc64-var, emc32-var, emc64-var-nosize or
+    /// custom:PATTERN[:linear].
+    #[arg(long, default_value = "emc64-var")]
+    pub layout: String,
+    /// Hierarchy builder: lbvh, lbvh-apetrei or binned-sah.
+    #[arg(long, default_value = "lbvh")]
+    pub builder: String,
+    /// Threads of the build pool (at least 1).
+    #[arg(long, default_value_t = 1)]
+    pub threads: usize,
+    /// Approximate triangle count of a built-in scene.
+    #[arg(long)]
+    pub prims: Option<usize>,
+    /// Largest leaf the SAH collapse may create (1 keeps one primitive per leaf).
+    #[arg(long, default_value_t = 8)]
+    pub leaf_size: u32,
+    /// Build this many times and report the run with the median thread-CPU total.
+    #[arg(long, default_value_t = 1)]
+    pub repeat: usize,
+    /// Skip the structural check of the finished BVH.
+    #[arg(long)]
+    pub no_validate: bool,
+}
+
+/// Run `emc build`.
+pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
+    if args.threads == 0 {
+        bail!("--threads must be at least 1");
+    }
+    if args.leaf_size == 0 {
+        bail!("--leaf-size must be at least 1");
+    }
+    if args.repeat == 0 {
+        bail!("--repeat must be at least 1");
+    }
+    let layout: LayoutSpec = args
+        .layout
+        .parse()
+        .with_context(|| format!("--layout {}", args.layout))?;
+    let builder: Builder = args.builder.parse()?;
+    let opts = BuildOptions {
+        layout,
+        builder,
+        threads: args.threads,
+        collapse: CollapseParams {
+            max_leaf: args.leaf_size,
+            ..CollapseParams::default()
+        },
+    };
+    let scene = load_with(
+        &args.scene,
+        &SceneOptions {
+            prims: args.prims,
+            ..SceneOptions::default()
+        },
+    )
+    .with_context(|| format!("loading {}", args.scene))?;
+    if scene.dropped_nonfinite > 0 {
+        println!(
+            "note: {} triangles with a non-finite vertex were dropped",
+            scene.dropped_nonfinite
+        );
+    }
+    let mut runs: Vec<BuildOutput> = Vec::with_capacity(args.repeat);
+    for _ in 0..args.repeat {
+        runs.push(build_scene(&scene, &opts)?);
+    }
+    runs.sort_by(|a, b| a.report.total().cpu_ms.total_cmp(&b.report.total().cpu_ms));
+    let out = &runs[runs.len() / 2];
+    let r = &out.report;
+    println!(
+        "scene {}: {} triangles; builder {}, layout {}, threads {}{}",
+        scene.name,
+        r.prims,
+        r.builder,
+        r.layout.as_deref().unwrap_or("(none)"),
+        r.threads,
+        if args.repeat > 1 {
+            format!(", median of {} runs by CPU time", args.repeat)
+        } else {
+            String::new()
+        }
+    );
+    println!(
+        "{:<10} {:>10} {:>10} {:>8}",
+        "phase", "wall ms", "cpu ms", "cpu/wall"
+    );
+    for p in Phase::ALL {
+        let t = r.phase(p);
+        let par = if t.wall_ms > 0.0 {
+            t.cpu_ms / t.wall_ms
+        } else {
+            0.0
+        };
+        println!(
+            "{:<10} {:>10.2} {:>10.2} {:>8.2}",
+            p.name(),
+            t.wall_ms,
+            t.cpu_ms,
+            par
+        );
+    }
+    let t = r.total();
+    println!("{:<10} {:>10.2} {:>10.2}", "total", t.wall_ms, t.cpu_ms);
+    println!(
+        "throughput: {:.2} Mprims per thread-CPU-second, {:.2} Mprims per wall-second",
+        r.mprims_per_cpu_s(),
+        r.mprims_per_wall_s()
+    );
+    if r.sort.passes + r.sort.skipped > 0 {
+        println!(
+            "sort: {} passes, {} skipped (constant digit)",
+            r.sort.passes, r.sort.skipped
+        );
+    }
+    println!(
+        "tree: {} nodes, {} leaves, depth {}",
+        r.nodes, r.leaves, r.depth
+    );
+    println!(
+        "SAH headline (Ct = Ci = 1, one primitive per leaf): {:.4}",
+        r.sah_headline
+    );
+    println!(
+        "SAH collapsed (Ct = 1.2, Ci = 1, leaves of at most {}): {:.4}",
+        args.leaf_size, r.sah_collapsed
+    );
+    if !args.no_validate {
+        let s = out
+            .bvh
+            .validate(&out.aabbs)
+            .context("the built BVH is malformed")?;
+        println!(
+            "validate: ok ({} nodes, {} leaves, largest leaf {}, depth {})",
+            s.nodes, s.leaves, s.max_leaf_size, s.depth
+        );
+    }
+    Ok(())
+}
