@@ -11,7 +11,7 @@
 //! join depth and finish on an explicit work stack, so no input can exhaust the call stack.
 
 use emc_core::Aabb;
-use glam::Vec3A;
+use glam::{Vec3A, Vec4};
 use rayon::prelude::*;
 use thiserror::Error;
 
@@ -137,38 +137,51 @@ pub fn build_binned_sah_detailed(
     })
 }
 
-/// A primitive while the tree is built: its box and its id (28 bytes, moved by partitioning).
+/// A primitive while the tree is built: its box in two 16-byte lanes, the id in the bits of
+/// the fourth lane of `min` (32 bytes, moved by partitioning).
+///
+/// ```text
+///   lo: min.x | min.y | min.z | id (u32 bits)      hi: max.x | max.y | max.z | 0
+/// ```
 #[derive(Clone, Copy, Debug, Default)]
-#[repr(C)]
 struct PrimRef {
-    min: [f32; 3],
-    max: [f32; 3],
-    id: u32,
+    lo: Vec4,
+    hi: Vec4,
 }
 
 impl PrimRef {
     #[inline]
     fn new(b: &Aabb, id: u32) -> PrimRef {
         PrimRef {
-            min: b.min.to_array(),
-            max: b.max.to_array(),
-            id,
+            lo: b.min.extend(f32::from_bits(id)),
+            hi: b.max.extend(0.0),
         }
+    }
+
+    #[inline]
+    fn id(&self) -> u32 {
+        self.lo.w.to_bits()
+    }
+
+    /// The box as two SIMD vectors (the id lane dropped).
+    #[inline]
+    fn simd(&self) -> (Vec3A, Vec3A) {
+        (Vec3A::from_vec4(self.lo), Vec3A::from_vec4(self.hi))
     }
 
     /// Centroid, exact in `f64` (half the sum of two `f32`).
     #[inline]
     fn centroid(&self) -> [f64; 3] {
         [
-            (self.min[0] as f64 + self.max[0] as f64) * 0.5,
-            (self.min[1] as f64 + self.max[1] as f64) * 0.5,
-            (self.min[2] as f64 + self.max[2] as f64) * 0.5,
+            (self.lo.x as f64 + self.hi.x as f64) * 0.5,
+            (self.lo.y as f64 + self.hi.y as f64) * 0.5,
+            (self.lo.z as f64 + self.hi.z as f64) * 0.5,
         ]
     }
 
     #[inline]
     fn aabb(&self) -> Aabb {
-        Aabb::new(self.min.into(), self.max.into())
+        Aabb::new(self.lo.truncate(), self.hi.truncate())
     }
 }
 
@@ -187,8 +200,9 @@ impl Box3 {
 
     #[inline]
     fn grow_ref(&mut self, r: &PrimRef) {
-        self.min = self.min.min(Vec3A::from_array(r.min));
-        self.max = self.max.max(Vec3A::from_array(r.max));
+        let (lo, hi) = r.simd();
+        self.min = self.min.min(lo);
+        self.max = self.max.max(hi);
     }
 
     #[inline]
@@ -289,31 +303,138 @@ impl BinMap {
     }
 }
 
-/// One bin: the union of its primitives' boxes and their number.
-#[derive(Clone, Copy, Debug)]
-struct Bin {
-    bounds: Box3,
-    count: u32,
+/// The bins of one node, all three axes, axis-major (`axis * nb + k`), with the sweep's
+/// scratch space. A bin's box is only meaningful while its count is non-zero: the first
+/// primitive of a bin overwrites it, so clearing costs one pass over the counts.
+#[derive(Clone, Debug)]
+struct Bins {
+    nb: usize,
+    counts: Vec<u32>,
+    bounds: Vec<Box3>,
+    /// Sweep scratch: the non-empty bins of one axis, and the areas and counts of their suffixes.
+    nonempty: Vec<usize>,
+    suffix_area: Vec<f64>,
+    suffix_count: Vec<u32>,
 }
 
-impl Bin {
-    const EMPTY: Bin = Bin {
-        bounds: Box3::EMPTY,
-        count: 0,
-    };
-}
-
-/// Bins of all three axes, axis-major: `bins[axis * nb + k]`.
-fn bin_serial(refs: &[PrimRef], map: &BinMap, out: &mut [Bin]) {
-    let nb = map.bins;
-    out[..3 * nb].fill(Bin::EMPTY);
-    for r in refs {
-        let c = r.centroid();
-        for (a, &ca) in c.iter().enumerate() {
-            let b = &mut out[a * nb + map.bin(ca, a)];
-            b.bounds.grow_ref(r);
-            b.count += 1;
+impl Bins {
+    fn new(nb: usize) -> Bins {
+        Bins {
+            nb,
+            counts: vec![0; 3 * nb],
+            bounds: vec![Box3::EMPTY; 3 * nb],
+            nonempty: Vec::with_capacity(nb),
+            suffix_area: vec![0.0; nb],
+            suffix_count: vec![0; nb],
         }
+    }
+
+    /// Bins `refs` (after clearing).
+    fn fill(&mut self, refs: &[PrimRef], map: &BinMap) {
+        let nb = self.nb;
+        self.counts.fill(0);
+        for r in refs {
+            let c = r.centroid();
+            let (lo, hi) = r.simd();
+            for (a, &ca) in c.iter().enumerate() {
+                let i = a * nb + map.bin(ca, a);
+                let b = &mut self.bounds[i];
+                if self.counts[i] == 0 {
+                    *b = Box3 { min: lo, max: hi };
+                } else {
+                    b.min = b.min.min(lo);
+                    b.max = b.max.max(hi);
+                }
+                self.counts[i] += 1;
+            }
+        }
+    }
+
+    /// Adds the bins of `o` (same bin map) to these.
+    fn merge(&mut self, o: &Bins) {
+        for i in 0..3 * self.nb {
+            if o.counts[i] == 0 {
+                continue;
+            }
+            if self.counts[i] == 0 {
+                self.bounds[i] = o.bounds[i];
+            } else {
+                self.bounds[i] = self.bounds[i].union(&o.bounds[i]);
+            }
+            self.counts[i] += o.counts[i];
+        }
+    }
+
+    /// Primitives in bins below `split` on `axis`.
+    fn count_below(&self, axis: usize, split: usize) -> usize {
+        let base = axis * self.nb;
+        self.counts[base..base + split]
+            .iter()
+            .map(|&c| c as usize)
+            .sum()
+    }
+
+    /// Sweeps the bins for the lowest `A_L·N_L + A_R·N_R`; ties go to the lowest axis, then the
+    /// lowest split position. `None` when no axis has a split with both sides non-empty.
+    ///
+    /// Positions that only move an empty bin from one side to the other give the same split,
+    /// so only the lowest of each such run is evaluated: the position just after each
+    /// non-empty bin (`split` = that bin + 1).
+    fn choose_split(&mut self, map: &BinMap) -> Option<Plan> {
+        let nb = self.nb;
+        let mut best: Option<(f64, usize, usize)> = None;
+        for axis in 0..3 {
+            if !map.active[axis] {
+                continue;
+            }
+            let base = axis * nb;
+            self.nonempty.clear();
+            self.nonempty
+                .extend((0..nb).filter(|&k| self.counts[base + k] != 0));
+            let m = self.nonempty.len();
+            // suffix_*[j] describe the non-empty bins j..m.
+            let mut acc = Box3::EMPTY;
+            let mut cnt = 0u32;
+            for j in (1..m).rev() {
+                let k = base + self.nonempty[j];
+                acc = acc.union(&self.bounds[k]);
+                cnt += self.counts[k];
+                self.suffix_area[j] = acc.area();
+                self.suffix_count[j] = cnt;
+            }
+            let mut left = Box3::EMPTY;
+            let mut n_left = 0u32;
+            for j in 1..m {
+                let k = base + self.nonempty[j - 1];
+                left = left.union(&self.bounds[k]);
+                n_left += self.counts[k];
+                let cost =
+                    left.area() * n_left as f64 + self.suffix_area[j] * self.suffix_count[j] as f64;
+                if best.is_none_or(|(c, _, _)| cost < c) {
+                    best = Some((cost, axis, self.nonempty[j - 1] + 1));
+                }
+            }
+        }
+        let (_, axis, split) = best?;
+        let base = axis * nb;
+        let (mut left, mut right) = (Box3::EMPTY, Box3::EMPTY);
+        let mut n_left = 0usize;
+        for k in (0..nb).filter(|&k| self.counts[base + k] != 0) {
+            let b = &self.bounds[base + k];
+            if k < split {
+                left = left.union(b);
+                n_left += self.counts[base + k] as usize;
+            } else {
+                right = right.union(b);
+            }
+        }
+        Some(Plan::Binned {
+            axis,
+            split,
+            n_left,
+            left,
+            right,
+        })
     }
 }
 
@@ -330,63 +451,6 @@ enum Plan {
     },
     /// All centroids coincide: halve the range.
     Median,
-}
-
-/// Sweeps the bins for the lowest `A_L·N_L + A_R·N_R`; ties go to the lowest axis, then the
-/// lowest split position. `None` when no axis has a split with both sides non-empty.
-fn choose_split(bins: &[Bin], map: &BinMap) -> Option<Plan> {
-    let nb = map.bins;
-    let mut suffix_area = [0.0f64; MAX_BINS];
-    let mut suffix_count = [0u32; MAX_BINS];
-    let mut best: Option<(f64, usize, usize)> = None;
-    for axis in 0..3 {
-        if !map.active[axis] {
-            continue;
-        }
-        let ab = &bins[axis * nb..(axis + 1) * nb];
-        // suffix_*[k] describe bins k..nb.
-        let mut acc = Box3::EMPTY;
-        let mut cnt = 0u32;
-        for k in (1..nb).rev() {
-            acc = acc.union(&ab[k].bounds);
-            cnt += ab[k].count;
-            suffix_area[k] = acc.area();
-            suffix_count[k] = cnt;
-        }
-        let mut left = Box3::EMPTY;
-        let mut n_left = 0u32;
-        for k in 1..nb {
-            left = left.union(&ab[k - 1].bounds);
-            n_left += ab[k - 1].count;
-            let n_right = suffix_count[k];
-            if n_left == 0 || n_right == 0 {
-                continue;
-            }
-            let cost = left.area() * n_left as f64 + suffix_area[k] * n_right as f64;
-            if best.is_none_or(|(c, _, _)| cost < c) {
-                best = Some((cost, axis, k));
-            }
-        }
-    }
-    let (_, axis, split) = best?;
-    let ab = &bins[axis * nb..(axis + 1) * nb];
-    let (mut left, mut right) = (Box3::EMPTY, Box3::EMPTY);
-    let mut n_left = 0usize;
-    for (k, b) in ab.iter().enumerate() {
-        if k < split {
-            left = left.union(&b.bounds);
-            n_left += b.count as usize;
-        } else {
-            right = right.union(&b.bounds);
-        }
-    }
-    Some(Plan::Binned {
-        axis,
-        split,
-        n_left,
-        left,
-        right,
-    })
 }
 
 /// Stable partition of `src` into `left` (bin below `split` on `axis`) and `right`, which must
@@ -470,7 +534,7 @@ fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
     let big = n >= PAR_NODE_MIN;
 
     // Plan the split; for big nodes keep the per-chunk bins to place the partition's pieces.
-    let mut chunk_bins: Vec<Vec<Bin>> = Vec::new();
+    let mut chunk_bins: Vec<Bins> = Vec::new();
     let plan = if !map.any_active() {
         Plan::Median
     } else if big {
@@ -478,23 +542,20 @@ fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
             .src
             .par_chunks(CHUNK)
             .map(|rs| {
-                let mut b = vec![Bin::EMPTY; 3 * nb];
-                bin_serial(rs, &map, &mut b);
+                let mut b = Bins::new(nb);
+                b.fill(rs, &map);
                 b
             })
             .collect();
-        let mut total = vec![Bin::EMPTY; 3 * nb];
+        let mut total = Bins::new(nb);
         for cb in &chunk_bins {
-            for (t, b) in total.iter_mut().zip(cb) {
-                t.bounds = t.bounds.union(&b.bounds);
-                t.count += b.count;
-            }
+            total.merge(cb);
         }
-        choose_split(&total, &map).unwrap_or(Plan::Median)
+        total.choose_split(&map).unwrap_or(Plan::Median)
     } else {
-        let mut b = vec![Bin::EMPTY; 3 * nb];
-        bin_serial(ctx.src, &map, &mut b);
-        choose_split(&b, &map).unwrap_or(Plan::Median)
+        let mut b = Bins::new(nb);
+        b.fill(ctx.src, &map);
+        b.choose_split(&map).unwrap_or(Plan::Median)
     };
 
     let Ctx {
@@ -599,20 +660,16 @@ fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
 fn parallel_partition(
     src: &[PrimRef],
     dst: &mut [PrimRef],
-    chunk_bins: &[Vec<Bin>],
+    chunk_bins: &[Bins],
     map: &BinMap,
     axis: usize,
     split: usize,
     n_left: usize,
 ) -> (CentroidBox, CentroidBox) {
-    let nb = map.bins;
     let (mut lrest, mut rrest) = dst.split_at_mut(n_left);
     let mut pieces: Vec<(&mut [PrimRef], &mut [PrimRef])> = Vec::with_capacity(chunk_bins.len());
     for (chunk, bins) in src.chunks(CHUNK).zip(chunk_bins) {
-        let l: usize = bins[axis * nb..axis * nb + split]
-            .iter()
-            .map(|b| b.count as usize)
-            .sum();
+        let l = bins.count_below(axis, split);
         let (pl, tl) = std::mem::take(&mut lrest).split_at_mut(l);
         let (pr, tr) = std::mem::take(&mut rrest).split_at_mut(chunk.len() - l);
         lrest = tl;
@@ -652,7 +709,7 @@ fn build_serial(ctx: Ctx<'_>, root: Task, nb: usize) -> u32 {
         prim_base,
         node_base,
     } = ctx;
-    let mut bins = vec![Bin::EMPTY; 3 * nb];
+    let mut bins = Bins::new(nb);
     let mut stack = vec![SerialTask {
         lo: 0,
         hi: buf_a.len(),
@@ -679,7 +736,7 @@ fn build_serial(ctx: Ctx<'_>, root: Task, nb: usize) -> u32 {
         };
         if n == 1 {
             nodes[node] = leaf(&cur[0], lo);
-            out[lo] = cur[0].id;
+            out[lo] = cur[0].id();
             max_depth = max_depth.max(task.depth);
             continue;
         }
@@ -689,16 +746,16 @@ fn build_serial(ctx: Ctx<'_>, root: Task, nb: usize) -> u32 {
             nodes[node] = Node::inner(task.bounds.aabb(), g + 1, g + 2);
             nodes[node + 1] = leaf(&cur[0], lo);
             nodes[node + 2] = leaf(&cur[1], lo + 1);
-            out[lo] = cur[0].id;
-            out[lo + 1] = cur[1].id;
+            out[lo] = cur[0].id();
+            out[lo + 1] = cur[1].id();
             max_depth = max_depth.max(task.depth + 1);
             continue;
         }
 
         let map = BinMap::new(&task.cbounds, nb);
         let plan = if map.any_active() {
-            bin_serial(cur, &map, &mut bins);
-            choose_split(&bins, &map).unwrap_or(Plan::Median)
+            bins.fill(cur, &map);
+            bins.choose_split(&map).unwrap_or(Plan::Median)
         } else {
             Plan::Median
         };
