@@ -27,7 +27,7 @@ impl Magic {
             seen[ch[k].index()] = true;
             k += 1;
         }
-        if ch.len() % k != 0 || (0..ch.len()).any(|i| ch[i] != ch[i % k]) {
+        if !ch.len().is_multiple_of(k) || (0..ch.len()).any(|i| ch[i] != ch[i % k]) {
             return None;
         }
         let n = (ch.len() / k) as u32;

@@ -70,6 +70,9 @@ impl FromStr for Backend {
 }
 
 /// One built backend.
+// The table variant holds its tables inline (about 32 KiB): emc-core has no allocator to box
+// them, and an expander is built once per encoder, so the size costs nothing per code.
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug)]
 pub enum Expander {
     /// See [`reference::Reference`].

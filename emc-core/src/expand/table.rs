@@ -82,19 +82,15 @@ impl Table {
                     }
                 }
             }
-            for c in 0..4 {
-                t.shift[j][c] = if lowest[c] == u32::MAX {
-                    0
-                } else {
-                    lowest[c] as u8
-                };
+            for (sh, &low) in t.shift[j].iter_mut().zip(&lowest) {
+                *sh = if low == u32::MAX { 0 } else { low as u8 };
             }
             for b in 0..256u64 {
                 let code = (b << (8 * j)) & low_mask(layout.len());
                 let q = r.compact(code);
                 let mut packed = 0u32;
-                for c in 0..4 {
-                    packed |= ((q[c] >> t.shift[j][c]) as u32 & 0xff) << (8 * c);
+                for (c, (&qc, &sh)) in q.iter().zip(&t.shift[j]).enumerate() {
+                    packed |= ((qc >> sh) as u32 & 0xff) << (8 * c);
                 }
                 t.dec[j][b as usize] = packed;
             }
