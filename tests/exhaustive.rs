@@ -5,6 +5,9 @@
 //! Opt-in full `f32` sweep (all 2^32 patterns × 3 frames, several minutes on 2 cores):
 //!     cargo test --release -p emc-tests --test exhaustive -- --ignored f32_sweep_full
 
+// Axis and channel loops index several per-axis arrays at once.
+#![allow(clippy::needless_range_loop)]
+
 use emc_core::{Aabb, Backend, Channel, Encoder, Expander, Frame, Layout, LayoutSpec};
 use emc_tests::{all_layouts, bx, f32_of_rank, fast_expanders, ones, pt, reference};
 use rayon::prelude::*;

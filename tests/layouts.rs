@@ -2,6 +2,9 @@
 //! message, the `emc64-sort` tie order, `-var` size positions, the closed-form "prebits" bit
 //! counts against the greedy halving, and the pitfalls of public EMC code (no wrap at 2^n).
 
+// Axis and channel loops index several per-axis arrays at once.
+#![allow(clippy::needless_range_loop)]
+
 use emc_core::layout::{axes_by_descending_extent, halving_schedule};
 use emc_core::{Backend, Channel, Encoder, Error, Frame, Layout, LayoutSpec, SizeTransform};
 use emc_tests::{bx, ones, pt, EXTENTS};

@@ -6,6 +6,9 @@
 //! --release -p emc-tests --test proptest_core`. Failures are persisted in
 //! `proptest-regressions/` next to this file and replayed first; commit them.
 
+// Axis and channel loops index several per-axis arrays at once.
+#![allow(clippy::needless_range_loop)]
+
 use emc_core::{Aabb, Backend, Channel, Encoder, Expander, LayoutSpec, Quantizer};
 use emc_tests::{
     aabb, fast_expanders, finite_f32, frame_of, layout_of, pattern, pattern_letters, reference,

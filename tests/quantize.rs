@@ -2,6 +2,9 @@
 //! max face, 1e±30 and subnormal magnitudes, signed zeros, identical primitives, monotonicity,
 //! and the errors for non-finite, inverted and empty input and for mismatched output buffers.
 
+// Axis and channel loops index several per-axis arrays at once.
+#![allow(clippy::needless_range_loop)]
+
 use emc_core::{
     Aabb, Backend, Channel, Encoder, Error, Frame, Layout, LayoutSpec, Normalization, SceneBounds,
 };

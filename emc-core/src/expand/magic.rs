@@ -67,7 +67,8 @@ impl Magic {
     /// channel is not used.
     #[inline]
     pub fn shifts(&self) -> [Option<u32>; 4] {
-        self.shift.map(|s| if s == u32::MAX { None } else { Some(s) })
+        self.shift
+            .map(|s| if s == u32::MAX { None } else { Some(s) })
     }
 
     /// Interleave channel values (x, y, z, s); bits above each channel's width are ignored.
