@@ -294,8 +294,9 @@ impl BinMap {
     #[inline]
     fn bin(&self, c: f64, axis: usize) -> usize {
         let t = (c - self.origin[axis]) * self.scale[axis];
-        // `as` saturates; t is never negative or NaN for a centroid inside the node.
-        (t as usize).min(self.bins - 1)
+        // t is never negative or NaN for a centroid inside the node; clamping in f64 first
+        // keeps the conversion to a plain truncation.
+        t.min((self.bins - 1) as f64) as u32 as usize
     }
 
     fn any_active(&self) -> bool {
@@ -304,8 +305,8 @@ impl BinMap {
 }
 
 /// The bins of one node, all three axes, axis-major (`axis * nb + k`), with the sweep's
-/// scratch space. A bin's box is only meaningful while its count is non-zero: the first
-/// primitive of a bin overwrites it, so clearing costs one pass over the counts.
+/// scratch space. Between nodes every bin is empty (box [`Box3::EMPTY`], count 0):
+/// [`Bins::clear_used`] restores that by visiting only the bins a node used.
 #[derive(Clone, Debug)]
 struct Bins {
     nb: usize,
@@ -329,23 +330,29 @@ impl Bins {
         }
     }
 
-    /// Bins `refs` (after clearing).
+    /// Adds `refs` to the (empty) bins.
     fn fill(&mut self, refs: &[PrimRef], map: &BinMap) {
         let nb = self.nb;
-        self.counts.fill(0);
+        debug_assert!(self.counts.iter().all(|&c| c == 0));
         for r in refs {
             let c = r.centroid();
             let (lo, hi) = r.simd();
             for (a, &ca) in c.iter().enumerate() {
                 let i = a * nb + map.bin(ca, a);
                 let b = &mut self.bounds[i];
-                if self.counts[i] == 0 {
-                    *b = Box3 { min: lo, max: hi };
-                } else {
-                    b.min = b.min.min(lo);
-                    b.max = b.max.max(hi);
-                }
+                b.min = b.min.min(lo);
+                b.max = b.max.max(hi);
                 self.counts[i] += 1;
+            }
+        }
+    }
+
+    /// Empties the bins again, touching only the non-empty ones.
+    fn clear_used(&mut self) {
+        for (c, b) in self.counts.iter_mut().zip(self.bounds.iter_mut()) {
+            if *c != 0 {
+                *c = 0;
+                *b = Box3::EMPTY;
             }
         }
     }
@@ -356,11 +363,7 @@ impl Bins {
             if o.counts[i] == 0 {
                 continue;
             }
-            if self.counts[i] == 0 {
-                self.bounds[i] = o.bounds[i];
-            } else {
-                self.bounds[i] = self.bounds[i].union(&o.bounds[i]);
-            }
+            self.bounds[i] = self.bounds[i].union(&o.bounds[i]);
             self.counts[i] += o.counts[i];
         }
     }
@@ -755,7 +758,9 @@ fn build_serial(ctx: Ctx<'_>, root: Task, nb: usize) -> u32 {
         let map = BinMap::new(&task.cbounds, nb);
         let plan = if map.any_active() {
             bins.fill(cur, &map);
-            bins.choose_split(&map).unwrap_or(Plan::Median)
+            let plan = bins.choose_split(&map).unwrap_or(Plan::Median);
+            bins.clear_used();
+            plan
         } else {
             Plan::Median
         };
