@@ -4,7 +4,10 @@
 
 use emc_core::glam::Vec3;
 use emc_core::{Aabb, Encoder, Frame, LayoutSpec, Quantizer};
+use emc_cpu::scene::{load_with, shared_scenes_dir, SceneOptions, SHARED_SCENES};
+use emc_hwsim::cost::cost;
 use emc_hwsim::{MemoryConfig, Mode, RoutingChoice, SizeSearch, SizeUnit, Unit, UnitOptions};
+use emc_tests::{aabb, frame_of, hard_scenes, layout_of, pattern, scene};
 use proptest::prelude::*;
 
 /// Count codes of the unit (fast datapath) that differ from emc-core's encoder.
@@ -177,7 +180,12 @@ fn fast_mode_equals_cycle_stepped_mode() {
     let d = UnitOptions::default();
     let opts = [
         d,
-        UnitOptions { lanes: 4, ..d },
+        UnitOptions {
+            lanes: 4,
+            // Credits must cover the codes in flight (Little's law: depth × rate + a burst).
+            output_capacity: 128,
+            ..d
+        },
         UnitOptions {
             lanes: 2,
             input_capacity: 8,
@@ -230,5 +238,332 @@ fn fast_mode_equals_cycle_stepped_mode() {
                 }
             }
         }
+    }
+}
+
+#[test]
+fn hard_scenes_are_bit_exact_in_both_modes() {
+    for (name, boxes) in hard_scenes() {
+        let frame = frame_of(&boxes);
+        for spec in all_specs() {
+            let layout = spec.resolve(frame.extent());
+            let enc = Encoder::for_layout(layout, &frame);
+            for opts in option_sets() {
+                let unit = Unit::new(&layout, &frame, &opts).unwrap();
+                let want: Vec<u64> = boxes.iter().map(|b| enc.encode(b)).collect();
+                let f = unit.run(&boxes, &mem(12.8, 100.0), Mode::Fast).unwrap();
+                let s = unit.run(&boxes, &mem(12.8, 100.0), Mode::Stepped).unwrap();
+                assert_eq!(f.codes, want, "{name} {spec} {opts:?}");
+                assert_eq!(s.codes, want, "{name} {spec} {opts:?}");
+                assert_eq!(f.stats, s.stats, "{name} {spec} {opts:?}");
+            }
+        }
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// Random custom layouts (channels up to 32 bits, either size transform) on random scenes
+    /// of hard-case boxes, probed with boxes inside and outside the frame.
+    #[test]
+    fn random_layouts_and_boxes_are_bit_exact(
+        chans in pattern(),
+        linear in any::<bool>(),
+        boxes in scene(24),
+        probes in prop::collection::vec(aabb(), 0..24),
+        lanes in 1u32..4,
+        xbar in any::<bool>(),
+    ) {
+        let frame = frame_of(&boxes);
+        let layout = layout_of(&chans, linear);
+        let enc = Encoder::for_layout(layout, &frame);
+        let opts = UnitOptions {
+            lanes,
+            routing: if xbar { RoutingChoice::Crossbar } else { RoutingChoice::Benes },
+            ..UnitOptions::default()
+        };
+        let unit = Unit::new(&layout, &frame, &opts).unwrap();
+        let all: Vec<Aabb> = boxes.iter().chain(probes.iter()).copied().collect();
+        for b in &all {
+            prop_assert_eq!(unit.code(b), enc.encode(b));
+        }
+        let f = unit.run(&all, &mem(6.4, 30.0), Mode::Fast).unwrap();
+        let s = unit.run(&all, &mem(6.4, 30.0), Mode::Stepped).unwrap();
+        let want: Vec<u64> = all.iter().map(|b| enc.encode(b)).collect();
+        prop_assert_eq!(&f.codes, &want);
+        prop_assert_eq!(&s.codes, &want);
+        prop_assert_eq!(f.stats, s.stats);
+    }
+
+    /// Timing only: random buffer sizes, bursts, lanes, II and bandwidths (down to starved).
+    #[test]
+    fn fast_timing_equals_stepped_on_random_configurations(
+        n in 0usize..400,
+        lanes in 1u32..5,
+        read_burst in 1u32..12,
+        extra_in in 0u32..40,
+        write_burst_bytes in 8u32..96,
+        extra_out in 0u32..20,
+        bw in 0.2f64..80.0,
+        lat in 0.0f64..300.0,
+        iterative in any::<bool>(),
+        spec_i in 0usize..4,
+    ) {
+        let boxes = small_scene(n as u64 + 5, n.max(1));
+        let boxes = &boxes[..n];
+        let frame = Frame::new(&small_scene(5, 50)).unwrap();
+        let spec = [LayoutSpec::Morton63, LayoutSpec::Emc64Var, LayoutSpec::Emc64Sort, LayoutSpec::Emc32Var][spec_i];
+        let cb = if spec == LayoutSpec::Emc32Var { 4 } else { 8 };
+        let wb = (write_burst_bytes / cb).max(1);
+        let opts = UnitOptions {
+            lanes,
+            read_burst,
+            input_capacity: read_burst + extra_in,
+            write_burst_bytes,
+            output_capacity: wb + extra_out,
+            iterative_formula: iterative,
+            ..UnitOptions::default()
+        };
+        let unit = Unit::for_spec(&spec, &frame, &opts).unwrap();
+        let m = MemoryConfig { bandwidth_gbps: (bw * 10.0).round() / 10.0, clock_ghz: 1.0, latency_ns: lat.round() };
+        let f = unit.run(boxes, &m, Mode::Fast).unwrap();
+        let s = unit.run(boxes, &m, Mode::Stepped).unwrap();
+        prop_assert_eq!(f.stats, s.stats);
+        prop_assert_eq!(f.codes, s.codes);
+    }
+}
+
+#[test]
+fn bad_configurations_are_refused() {
+    let boxes = small_scene(3, 10);
+    let frame = Frame::new(&boxes).unwrap();
+    let d = UnitOptions::default();
+    let spec = LayoutSpec::Emc64Var;
+    assert!(Unit::for_spec(&spec, &frame, &UnitOptions { lanes: 0, ..d }).is_err());
+    let u = Unit::for_spec(
+        &spec,
+        &frame,
+        &UnitOptions {
+            input_capacity: 4,
+            read_burst: 8,
+            ..d
+        },
+    )
+    .unwrap();
+    assert!(u.run(&boxes, &MemoryConfig::default(), Mode::Fast).is_err());
+    assert!(u
+        .run(&boxes, &MemoryConfig::default(), Mode::Stepped)
+        .is_err());
+    let u = Unit::for_spec(
+        &spec,
+        &frame,
+        &UnitOptions {
+            output_capacity: 2,
+            ..d
+        },
+    )
+    .unwrap();
+    assert!(u.timing(10, &MemoryConfig::default()).is_err());
+    let u = Unit::for_spec(&spec, &frame, &d).unwrap();
+    for bad in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+        assert!(u
+            .timing(
+                10,
+                &MemoryConfig {
+                    bandwidth_gbps: bad,
+                    ..MemoryConfig::default()
+                }
+            )
+            .is_err());
+        assert!(u
+            .timing(
+                10,
+                &MemoryConfig {
+                    clock_ghz: bad,
+                    ..MemoryConfig::default()
+                }
+            )
+            .is_err());
+    }
+    assert!(u
+        .timing(
+            10,
+            &MemoryConfig {
+                latency_ns: -1.0,
+                ..MemoryConfig::default()
+            }
+        )
+        .is_err());
+}
+
+#[test]
+fn timing_follows_bandwidth_and_lanes() {
+    // Compute-bound with ample memory: one code per cycle per lane after the pipeline fills.
+    let frame = Frame::new(&small_scene(2, 100)).unwrap();
+    let d = UnitOptions::default();
+    let unit = Unit::for_spec(&LayoutSpec::Emc64Var, &frame, &d).unwrap();
+    let n = 20_000u64;
+    let fast_mem = MemoryConfig {
+        bandwidth_gbps: 10_000.0,
+        clock_ghz: 1.0,
+        latency_ns: 0.0,
+    };
+    let s = unit.timing(n, &fast_mem).unwrap();
+    assert!(
+        s.codes_per_cycle() > 0.99 && s.codes_per_cycle() <= 1.0,
+        "{s}"
+    );
+    // Memory-bound: codes/cycle approaches bandwidth / (24 + 8) bytes per cycle.
+    for bw in [12.8, 25.6] {
+        let s = unit
+            .timing(
+                n,
+                &MemoryConfig {
+                    bandwidth_gbps: bw,
+                    ..fast_mem
+                },
+            )
+            .unwrap();
+        let bound = bw / 32.0;
+        assert!(s.codes_per_cycle() <= bound + 1e-9, "{bw}: {s}");
+        assert!(s.codes_per_cycle() > 0.97 * bound, "{bw}: {s}");
+        assert!(s.memory_utilisation() > 0.97, "{bw}: {s}");
+    }
+    // Four lanes at 51.2 GB/s: 1.6 codes/cycle, memory-bound above one lane's 1.0.
+    let four = Unit::for_spec(
+        &LayoutSpec::Emc64Var,
+        &frame,
+        &UnitOptions {
+            lanes: 4,
+            // Credits must cover the codes in flight (Little's law: depth × rate + a burst).
+            output_capacity: 128,
+            ..d
+        },
+    )
+    .unwrap();
+    let s = four
+        .timing(
+            n,
+            &MemoryConfig {
+                bandwidth_gbps: 51.2,
+                ..fast_mem
+            },
+        )
+        .unwrap();
+    assert!(
+        s.codes_per_cycle() > 1.5 && s.codes_per_cycle() <= 1.6,
+        "{s}"
+    );
+}
+
+#[test]
+fn cost_model_counts_only_instantiated_parts() {
+    let frame = Frame::new(&small_scene(2, 100)).unwrap();
+    let d = UnitOptions::default();
+    let m = cost(&Unit::for_spec(&LayoutSpec::Morton63, &frame, &d).unwrap());
+    let v = cost(&Unit::for_spec(&LayoutSpec::Emc64Var, &frame, &d).unwrap());
+    let x = cost(
+        &Unit::for_spec(
+            &LayoutSpec::Emc64Var,
+            &frame,
+            &UnitOptions {
+                routing: RoutingChoice::Crossbar,
+                ..d
+            },
+        )
+        .unwrap(),
+    );
+    let s = cost(&Unit::for_spec(&LayoutSpec::Emc64Sort, &frame, &d).unwrap());
+    assert!(m.items.iter().all(|i| !i.name.contains("Beneš")
+        && !i.name.contains("size")
+        && !i.name.contains("threshold")));
+    assert!(v.items.iter().any(|i| i.name.contains("Beneš")));
+    assert!(v
+        .items
+        .iter()
+        .any(|i| i.name.contains("threshold registers (63")));
+    assert!(m.area_um2() < v.area_um2() && v.area_um2() < x.area_um2());
+    assert!(
+        v.area_um2() < s.area_um2(),
+        "the sqrt/divide path costs more than thresholds"
+    );
+    assert!(m.latency_cycles < v.latency_cycles && v.latency_cycles < s.latency_cycles);
+    assert!(m.energy_pj() < v.energy_pj());
+    // Two lanes double the datapath but not the buffers or configuration registers.
+    let v2 = cost(
+        &Unit::for_spec(
+            &LayoutSpec::Emc64Var,
+            &frame,
+            &UnitOptions { lanes: 2, ..d },
+        )
+        .unwrap(),
+    );
+    assert!(v2.area_um2() < 2.0 * v.area_um2() && v2.area_um2() > 1.5 * v.logic_area_um2());
+}
+
+/// The built-in scenes at a small size, every standard layout, fast and stepped.
+#[test]
+fn builtin_scenes_are_bit_exact() {
+    for name in emc_cpu::scene::builtin::NAMES {
+        let scene = load_with(
+            &format!("builtin:{name}"),
+            &SceneOptions {
+                prims: Some(20_000),
+                ..SceneOptions::default()
+            },
+        )
+        .unwrap();
+        let boxes = scene.aabbs();
+        let frame = Frame::new(&boxes).unwrap();
+        for spec in LayoutSpec::STANDARD {
+            let enc = Encoder::new(&spec, &frame);
+            for opts in option_sets() {
+                let unit = Unit::for_spec(&spec, &frame, &opts).unwrap();
+                assert_eq!(
+                    mismatches(&unit, &enc, &boxes),
+                    0,
+                    "builtin:{name} {spec} {opts:?}"
+                );
+            }
+        }
+        let unit = Unit::for_spec(&LayoutSpec::Emc64Var, &frame, &UnitOptions::default()).unwrap();
+        let f = unit
+            .run(&boxes[..3000], &mem(12.8, 100.0), Mode::Fast)
+            .unwrap();
+        let s = unit
+            .run(&boxes[..3000], &mem(12.8, 100.0), Mode::Stepped)
+            .unwrap();
+        assert_eq!(f.stats, s.stats);
+        assert_eq!(f.codes, s.codes);
+    }
+}
+
+/// Every shared scene up to 1M triangles, every standard layout (skips when absent).
+#[test]
+fn shared_scenes_up_to_1m_are_bit_exact() {
+    if shared_scenes_dir().is_none() {
+        eprintln!("skipping: the shared scenes directory is absent");
+        return;
+    }
+    for (name, tris) in SHARED_SCENES {
+        if tris > 1_000_000 {
+            continue;
+        }
+        let Ok(scene) = load_with(name, &SceneOptions::default()) else {
+            eprintln!("skipping shared scene {name}: not present");
+            continue;
+        };
+        let boxes = scene.aabbs();
+        let frame = Frame::new(&boxes).unwrap();
+        for spec in LayoutSpec::STANDARD {
+            let enc = Encoder::new(&spec, &frame);
+            let unit = Unit::for_spec(&spec, &frame, &UnitOptions::default()).unwrap();
+            assert_eq!(mismatches(&unit, &enc, &boxes), 0, "{name} {spec}");
+        }
+        eprintln!(
+            "{name}: {} triangles bit-exact on every standard layout",
+            boxes.len()
+        );
     }
 }

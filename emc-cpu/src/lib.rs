@@ -10,3 +10,4 @@ pub mod cli;
 pub mod encode;
 pub mod scene;
 pub mod sort;
+pub mod trace;

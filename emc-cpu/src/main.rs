@@ -13,12 +13,16 @@ struct Cli {
 enum Verb {
     /// Build a BVH over a scene and print per-phase timings, tree shape and SAH.
     Build(emc_cpu::cli::build::BuildArgs),
+    /// Simulate the fixed-function EMC unit on a scene: bit-exactness against emc-core,
+    /// cycle statistics, and area/latency/energy over Morton with codes/cycle per bandwidth.
+    Hwsim(emc_cpu::cli::hwsim::HwsimArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result: anyhow::Result<()> = match cli.verb {
         Verb::Build(a) => emc_cpu::cli::build::run(&a),
+        Verb::Hwsim(a) => emc_cpu::cli::hwsim::run(&a),
     };
     if let Err(e) = result {
         eprintln!("emc: {e:#}");

@@ -1,3 +1,4 @@
 //! The verbs of the `emc` binary, one module each; `main.rs` only parses and dispatches.
 
 pub mod build;
+pub mod hwsim;
