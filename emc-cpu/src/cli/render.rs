@@ -1,0 +1,245 @@
+//! `emc render`: build a BVH over a scene, collapse it to the tracer's wide BVH, trace the
+//! benchmark protocol (primary, AO and diffuse bounce rays) on a local pool, print throughput
+//! and work per ray, and write a shaded PNG.
+
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use emc_core::LayoutSpec;
+
+use crate::build::Builder;
+use crate::scene::{load_with, SceneOptions};
+use crate::trace::image::{shade, Shading};
+use crate::trace::workload::{
+    all_ao_rays, all_bounce_rays, primary_rays, trace_closest, trace_occluded, Camera, CameraMode,
+    SceneFrame,
+};
+use crate::trace::{Accel, BuildOptions, NodeTest, Preset, TraceStats};
+
+/// Arguments of `emc render`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct RenderArgs {
+    /// A scene file (`.obj`, `.obj.zst`), a shared scene name, or `builtin:NAME`.
+    pub scene: String,
+    /// Build preset: fast, balanced or quality (the options below override it).
+    #[arg(long, default_value = "quality")]
+    pub preset: String,
+    /// Code layout of the LBVH builders (morton30, morton63, emc64-sort, emc64-var, ...).
+    #[arg(long)]
+    pub layout: Option<String>,
+    /// Hierarchy builder: lbvh, lbvh-apetrei or binned-sah.
+    #[arg(long)]
+    pub builder: Option<String>,
+    /// Treelet restructuring (atrbvh) before the leaf collapse: on or off.
+    #[arg(long)]
+    pub restructure: Option<String>,
+    /// Largest leaf of the SAH collapse.
+    #[arg(long)]
+    pub leaf_size: Option<u32>,
+    /// Threads for building and tracing (at least 1).
+    #[arg(long, default_value_t = 1)]
+    pub threads: usize,
+    /// Image width and height in pixels (the protocol uses 1024).
+    #[arg(long, default_value_t = 1024)]
+    pub res: u32,
+    /// Camera: outside or center (default: center for pbrt-bathroom, else outside).
+    #[arg(long)]
+    pub camera: Option<String>,
+    /// Approximate triangle count of a built-in scene.
+    #[arg(long)]
+    pub prims: Option<usize>,
+    /// Where to write the PNG (none: no image).
+    #[arg(long)]
+    pub out: Option<String>,
+    /// Pixel shading: normal or ao.
+    #[arg(long, default_value = "normal")]
+    pub shading: String,
+    /// Trace each ray set this many times and report the run with the median CPU time.
+    #[arg(long, default_value_t = 1)]
+    pub repeat: usize,
+}
+
+/// CPU time of the calling thread in seconds.
+fn thread_cpu_s() -> f64 {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec; the call only writes it.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    if rc == 0 {
+        ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
+    } else {
+        f64::NAN
+    }
+}
+
+/// One timed phase: wall and pool CPU seconds.
+#[derive(Clone, Copy, Debug)]
+struct Timing {
+    wall: f64,
+    cpu: f64,
+}
+
+fn timed<R: Send>(pool: &rayon::ThreadPool, f: impl FnOnce() -> R + Send) -> (R, Timing) {
+    let cpu = || pool.broadcast(|_| thread_cpu_s()).iter().sum::<f64>();
+    let c0 = cpu();
+    let t0 = Instant::now();
+    let r = pool.install(f);
+    let wall = t0.elapsed().as_secs_f64();
+    (
+        r,
+        Timing {
+            wall,
+            cpu: cpu() - c0,
+        },
+    )
+}
+
+fn median_run<R: Send>(
+    pool: &rayon::ThreadPool,
+    repeat: usize,
+    mut f: impl FnMut() -> R + Send,
+) -> (R, Timing) {
+    let mut runs: Vec<(R, Timing)> = (0..repeat).map(|_| timed(pool, &mut f)).collect();
+    runs.sort_by(|a, b| a.1.cpu.total_cmp(&b.1.cpu));
+    runs.swap_remove(runs.len() / 2)
+}
+
+fn report(kind: &str, rays: usize, t: Timing, s: &TraceStats, threads: usize) {
+    let n = rays as f64;
+    let per_ray = |x: u64| if rays > 0 { x as f64 / n } else { 0.0 };
+    println!(
+        "{kind:<8} {rays:>9} rays  {:>8.2} Mrays/s  {:>6.2} Mrays/s/thread  {:>6.2} M rays per thread-CPU-s  {:>6.2} node tests/ray  {:>6.2} triangle tests/ray",
+        n / t.wall * 1e-6,
+        n / t.wall * 1e-6 / threads as f64,
+        n / t.cpu * 1e-6,
+        per_ray(s.node_tests),
+        per_ray(s.tri_tests),
+    );
+}
+
+/// Run `emc render`.
+pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
+    if args.threads == 0 {
+        bail!("--threads must be at least 1");
+    }
+    if args.res == 0 || args.res > 16384 {
+        bail!("--res must be in 1..=16384");
+    }
+    if args.repeat == 0 {
+        bail!("--repeat must be at least 1");
+    }
+    let preset = match args.preset.as_str() {
+        "fast" => Preset::Fast,
+        "balanced" => Preset::Balanced,
+        "quality" => Preset::Quality,
+        p => bail!("unknown preset `{p}` (fast, balanced, quality)"),
+    };
+    let layout: Option<LayoutSpec> = args
+        .layout
+        .as_deref()
+        .map(|l| l.parse().with_context(|| format!("--layout {l}")))
+        .transpose()?;
+    let builder: Option<Builder> = args.builder.as_deref().map(str::parse).transpose()?;
+    let restructure = match args.restructure.as_deref() {
+        None => None,
+        Some("on") => Some(true),
+        Some("off") => Some(false),
+        Some(x) => bail!("--restructure takes on or off, not `{x}`"),
+    };
+    let shading: Shading = args.shading.parse().map_err(anyhow::Error::msg)?;
+    let scene = load_with(
+        &args.scene,
+        &SceneOptions {
+            prims: args.prims,
+            ..SceneOptions::default()
+        },
+    )
+    .with_context(|| format!("loading {}", args.scene))?;
+    let mode = match args.camera.as_deref() {
+        Some(c) => c.parse::<CameraMode>().map_err(anyhow::Error::msg)?,
+        None => CameraMode::for_scene(&scene.name),
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads)
+        .build()
+        .context("creating the thread pool")?;
+    let opts = BuildOptions {
+        preset,
+        layout,
+        builder,
+        restructure,
+        threads: Some(args.threads),
+        leaf_size: args.leaf_size,
+    };
+    let (b, l, r) = opts.resolve();
+    let tris: Vec<_> = (0..scene.triangle_count())
+        .map(|i| scene.triangle(i))
+        .collect();
+    let t0 = Instant::now();
+    let accel = Accel::from_triangles(tris, &opts)?;
+    let build_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let w = accel.wide_bvh();
+    let tris = accel.triangles();
+    println!(
+        "scene {}: {} triangles; builder {b}, layout {l}, restructure {}, leaf size {}, threads {}",
+        scene.name,
+        tris.len(),
+        if r { "on" } else { "off" },
+        args.leaf_size.unwrap_or(crate::trace::api::DEFAULT_LEAF_SIZE),
+        args.threads
+    );
+    println!(
+        "build + collapse to 4-wide: {build_ms:.1} ms wall; {} wide nodes, {} leaves, depth {}, {:.1} MiB",
+        w.nodes.len(),
+        w.leaves,
+        w.depth,
+        w.memory_bytes() as f64 / (1 << 20) as f64
+    );
+    let frame = SceneFrame::of(tris);
+    let cam = Camera::protocol(&frame, mode);
+    let primary = pool.install(|| primary_rays(&cam, args.res, args.res));
+    let ((hits, _), tp) = median_run(&pool, args.repeat, || {
+        trace_closest(w, &primary, NodeTest::Simd, false)
+    });
+    let (_, sp) = pool.install(|| trace_closest(w, &primary, NodeTest::Simd, true));
+    let (ao, _) = pool.install(|| all_ao_rays(&primary, &hits, tris, frame.diag));
+    let ((occ, _), ta) = median_run(&pool, args.repeat, || {
+        trace_occluded(w, &ao, NodeTest::Simd, false)
+    });
+    let (_, sa) = pool.install(|| trace_occluded(w, &ao, NodeTest::Simd, true));
+    let bounce = pool.install(|| all_bounce_rays(&primary, &hits, tris, frame.diag));
+    let (_, tb) = median_run(&pool, args.repeat, || {
+        trace_closest(w, &bounce, NodeTest::Simd, false)
+    });
+    let (_, sb) = pool.install(|| trace_closest(w, &bounce, NodeTest::Simd, true));
+    let n_hits = hits.iter().filter(|h| h.is_some()).count();
+    let n_occ = occ.iter().filter(|&&o| o).count();
+    println!(
+        "camera {mode:?}, {}x{}: primary hits {n_hits}, AO rays {}, AO occluded {n_occ}",
+        args.res,
+        args.res,
+        ao.len()
+    );
+    report("primary", primary.len(), tp, &sp, args.threads);
+    report("ao", ao.len(), ta, &sa, args.threads);
+    report("bounce", bounce.len(), tb, &sb, args.threads);
+    if let Some(path) = &args.out {
+        let img = pool.install(|| {
+            shade(
+                w,
+                tris,
+                &primary,
+                &hits,
+                (args.res, args.res),
+                frame.diag,
+                shading,
+            )
+        });
+        let f = std::fs::File::create(path).with_context(|| format!("creating {path}"))?;
+        img.write_png(f).with_context(|| format!("writing {path}"))?;
+        println!("wrote {path} ({shading:?} shading)");
+    }
+    Ok(())
+}

@@ -1,0 +1,282 @@
+//! Robust ray geometry of the tracer: the ray with its precomputed constants, the watertight
+//! ray–triangle test of Woop, Benthin and Wald (2013) and the conservative slab test of Ize
+//! (2013). Every traversal path (scalar or SIMD) calls these or agrees with them bit for bit.
+
+use glam::Vec3;
+
+/// A ray: origin, direction (need not be normalized, must be finite and non-zero) and the
+/// closed parameter interval `[tnear, tfar]` in which hits count.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ray {
+    /// Origin.
+    pub origin: Vec3,
+    /// Direction.
+    pub dir: Vec3,
+    /// Smallest accepted hit distance (in units of `dir`).
+    pub tnear: f32,
+    /// Largest accepted hit distance; `f32::INFINITY` for an unbounded ray.
+    pub tfar: f32,
+}
+
+impl Ray {
+    /// A ray over `[0, +inf]`.
+    #[inline]
+    pub fn new(origin: Vec3, dir: Vec3) -> Ray {
+        Ray {
+            origin,
+            dir,
+            tnear: 0.0,
+            tfar: f32::INFINITY,
+        }
+    }
+
+    /// A ray over `[tnear, tfar]`.
+    #[inline]
+    pub fn segment(origin: Vec3, dir: Vec3, tnear: f32, tfar: f32) -> Ray {
+        Ray {
+            origin,
+            dir,
+            tnear,
+            tfar,
+        }
+    }
+
+    /// True when origin, direction and interval are usable: finite origin and direction, a
+    /// non-zero direction, `tnear` finite and `tnear <= tfar` (no NaN).
+    #[inline]
+    pub fn is_valid(&self) -> bool {
+        self.origin.is_finite()
+            && self.dir.is_finite()
+            && self.dir != Vec3::ZERO
+            && self.tnear.is_finite()
+            && self.tnear <= self.tfar
+    }
+}
+
+/// The closest hit of a ray.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    /// Hit distance along the ray (in units of `dir`).
+    pub t: f32,
+    /// Triangle id (index into the triangle list the BVH was built over).
+    pub prim: u32,
+    /// Barycentric weight of vertex 1.
+    pub u: f32,
+    /// Barycentric weight of vertex 2.
+    pub v: f32,
+}
+
+/// `γ(3) = 3u / (1 − 3u)` with `u = 2^-24`, the error bound of three rounded operations.
+const GAMMA3: f32 = 3.0 * (f32::EPSILON * 0.5) / (1.0 - 3.0 * (f32::EPSILON * 0.5));
+
+/// Ize's widening factor for the far slab distance, `1 + 2γ(3)`, rounded up.
+pub const FAR_WIDEN: f32 = 1.0 + 2.0 * GAMMA3;
+
+/// The per-ray constants of both tests, computed once per ray.
+///
+/// Box test: `inv = 1/dir` (±inf for a ±0 component) and, per axis, which box plane is near
+/// (`near_is_max[a]`, taken from the sign bit of `dir[a]`, so `-0.0` counts as negative).
+/// Triangle test: the axis permutation `kx, ky, kz` (`kz` = largest |dir| component, `kx, ky`
+/// swapped when `dir[kz] < 0` to keep the winding) and the shear `sx, sy, sz`.
+#[derive(Clone, Copy, Debug)]
+pub struct PreRay {
+    /// Origin, as an array.
+    pub org: [f32; 3],
+    /// Direction, as an array.
+    pub dir: [f32; 3],
+    /// Component-wise reciprocal of the direction.
+    pub inv: [f32; 3],
+    /// Per axis: the near plane is the box's max (direction sign bit set).
+    pub near_is_max: [bool; 3],
+    /// Permuted axes of the watertight test.
+    pub k: [usize; 3],
+    /// Shear constants `(dir[kx]/dir[kz], dir[ky]/dir[kz], 1/dir[kz])`.
+    pub shear: [f32; 3],
+    /// The closed interval of accepted hits.
+    pub tnear: f32,
+    /// Upper end of the interval (shrinks as closer hits are found).
+    pub tfar: f32,
+}
+
+impl PreRay {
+    /// Precompute the constants of `ray` (which must satisfy [`Ray::is_valid`]).
+    #[inline]
+    pub fn new(ray: &Ray) -> PreRay {
+        let org = ray.origin.to_array();
+        let dir = ray.dir.to_array();
+        let inv = [1.0 / dir[0], 1.0 / dir[1], 1.0 / dir[2]];
+        let near_is_max = [
+            dir[0].is_sign_negative(),
+            dir[1].is_sign_negative(),
+            dir[2].is_sign_negative(),
+        ];
+        let a = [dir[0].abs(), dir[1].abs(), dir[2].abs()];
+        // Largest component; ties go to the lower axis (deterministic).
+        let kz = if a[0] >= a[1] && a[0] >= a[2] {
+            0
+        } else if a[1] >= a[2] {
+            1
+        } else {
+            2
+        };
+        let mut kx = (kz + 1) % 3;
+        let mut ky = (kx + 1) % 3;
+        if dir[kz] < 0.0 {
+            core::mem::swap(&mut kx, &mut ky);
+        }
+        let shear = [dir[kx] / dir[kz], dir[ky] / dir[kz], 1.0 / dir[kz]];
+        PreRay {
+            org,
+            dir,
+            inv,
+            near_is_max,
+            k: [kx, ky, kz],
+            shear,
+            tnear: ray.tnear,
+            tfar: ray.tfar,
+        }
+    }
+}
+
+/// `max` with SSE semantics: `a > b ? a : b` (a NaN in either operand yields `b`).
+#[inline(always)]
+pub fn max_sse(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `min` with SSE semantics: `a < b ? a : b` (a NaN in either operand yields `b`).
+#[inline(always)]
+pub fn min_sse(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// Conservative slab test of one box (the scalar reference of the SIMD node tests).
+///
+/// Returns the entry distance when the ray's interval `[tnear, tfar]` meets the box. The far
+/// distance of each slab is widened by [`FAR_WIDEN`] (Ize 2013), so rounding never culls a box
+/// the exact ray touches. A zero direction component gives `inv = ±inf`; a slab distance is
+/// then `±inf` (origin inside/outside the slab) or NaN (origin exactly on the plane), and the
+/// NaN is discarded by the operand order of [`max_sse`]/[`min_sse`], which keeps the interval
+/// unchanged: no NaN ever escapes. An empty box (min = +inf, max = −inf) never passes.
+#[inline(always)]
+pub fn slab_test(r: &PreRay, min: [f32; 3], max: [f32; 3], tfar: f32) -> Option<f32> {
+    let mut t0 = r.tnear;
+    let mut t1 = tfar;
+    for a in 0..3 {
+        let (np, fp) = if r.near_is_max[a] {
+            (max[a], min[a])
+        } else {
+            (min[a], max[a])
+        };
+        let tn = (np - r.org[a]) * r.inv[a];
+        let tf = (fp - r.org[a]) * r.inv[a] * FAR_WIDEN;
+        t0 = max_sse(tn, t0);
+        t1 = min_sse(tf, t1);
+    }
+    (t0 <= t1).then_some(t0)
+}
+
+/// The edge function `a_x·b_y − a_y·b_x` in `f64`, used when the `f32` value is exactly 0
+/// (Woop et al.'s fallback that keeps shared edges consistent).
+#[inline(never)]
+#[cold]
+fn edge_f64(ax: f32, ay: f32, bx: f32, by: f32) -> f32 {
+    (ax as f64 * by as f64 - ay as f64 * bx as f64) as f32
+}
+
+/// Watertight ray–triangle test (Woop, Benthin, Wald 2013), two-sided.
+///
+/// Returns `(t, u, v)` for a hit with `r.tnear <= t <= tmax`. Rays through a shared edge or
+/// vertex hit at least one of the triangles sharing it (the edge functions of the two sides
+/// are exact negations, and zero values are recomputed in `f64`). Degenerate (zero-area)
+/// triangles and rays in the triangle's plane never hit.
+#[inline(always)]
+pub fn triangle_test(r: &PreRay, v: &[[f32; 3]; 3], tmax: f32) -> Option<(f32, f32, f32)> {
+    let [kx, ky, kz] = r.k;
+    let [sx, sy, sz] = r.shear;
+    let rel = |p: &[f32; 3]| [p[0] - r.org[0], p[1] - r.org[1], p[2] - r.org[2]];
+    let a = rel(&v[0]);
+    let b = rel(&v[1]);
+    let c = rel(&v[2]);
+    let ax = a[kx] - sx * a[kz];
+    let ay = a[ky] - sy * a[kz];
+    let bx = b[kx] - sx * b[kz];
+    let by = b[ky] - sy * b[kz];
+    let cx = c[kx] - sx * c[kz];
+    let cy = c[ky] - sy * c[kz];
+    let mut u = cx * by - cy * bx;
+    let mut w_ = ax * cy - ay * cx;
+    let mut w = bx * ay - by * ax;
+    if u == 0.0 || w_ == 0.0 || w == 0.0 {
+        u = edge_f64(cx, cy, bx, by);
+        w_ = edge_f64(ax, ay, cx, cy);
+        w = edge_f64(bx, by, ax, ay);
+    }
+    let vv = w_;
+    if (u < 0.0 || vv < 0.0 || w < 0.0) && (u > 0.0 || vv > 0.0 || w > 0.0) {
+        return None;
+    }
+    let det = u + vv + w;
+    if det == 0.0 {
+        return None;
+    }
+    let az = sz * a[kz];
+    let bz = sz * b[kz];
+    let cz = sz * c[kz];
+    let tt = u * az + vv * bz + w * cz;
+    let t = tt / det;
+    // NaN-safe: a NaN `t` fails both comparisons.
+    if t >= r.tnear && t <= tmax {
+        let inv_det = 1.0 / det;
+        Some((t, vv * inv_det, w * inv_det))
+    } else {
+        None
+    }
+}
+
+/// True when a candidate `(t, prim)` beats the best so far: smaller `t`, or equal `t` and a
+/// lower triangle id (the tie rule every path shares).
+#[inline(always)]
+pub fn better(t: f32, prim: u32, best_t: f32, best_prim: u32) -> bool {
+    t < best_t || (t == best_t && prim < best_prim)
+}
+
+/// Closest hit over all triangles by brute force (the reference every BVH path must equal).
+pub fn brute_force_closest(ray: &Ray, tris: &[[Vec3; 3]]) -> Option<Hit> {
+    if !ray.is_valid() {
+        return None;
+    }
+    let r = PreRay::new(ray);
+    let mut best: Option<Hit> = None;
+    for (i, tri) in tris.iter().enumerate() {
+        let v = [tri[0].to_array(), tri[1].to_array(), tri[2].to_array()];
+        let tmax = best.map_or(r.tfar, |h| h.t);
+        if let Some((t, u, w)) = triangle_test(&r, &v, tmax) {
+            let prim = i as u32;
+            if best.is_none_or(|h| better(t, prim, h.t, h.prim)) {
+                best = Some(Hit { t, prim, u, v: w });
+            }
+        }
+    }
+    best
+}
+
+/// Any hit over all triangles by brute force.
+pub fn brute_force_occluded(ray: &Ray, tris: &[[Vec3; 3]]) -> bool {
+    if !ray.is_valid() {
+        return false;
+    }
+    let r = PreRay::new(ray);
+    tris.iter().any(|tri| {
+        let v = [tri[0].to_array(), tri[1].to_array(), tri[2].to_array()];
+        triangle_test(&r, &v, r.tfar).is_some()
+    })
+}

@@ -1,0 +1,59 @@
+//! The ray tracer: a BVH2 from any builder becomes a 4-wide SIMD BVH ([`wide`]), traced with
+//! watertight geometry ([`intersect`], [`traverse`]) by the benchmark workloads ([`workload`])
+//! and the library API ([`api`]). `emc render` drives it from the command line.
+
+pub mod api;
+pub mod image;
+pub mod intersect;
+pub mod traverse;
+pub mod wide;
+pub mod workload;
+
+pub use api::{Accel, BuildOptions, Preset};
+pub use intersect::{Hit, Ray};
+pub use traverse::{NodeTest, TraceStats};
+pub use wide::WideBvh;
+
+use crate::bvh::validate::ValidateError;
+
+/// Why a BVH cannot be traced or an acceleration structure cannot be built.
+#[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
+pub enum TraceError {
+    /// No triangle to build over.
+    #[error("no triangles to trace")]
+    NoTriangles,
+    /// More triangles than 31-bit ids allow.
+    #[error("{0} triangles exceed the tracer's limit of 2^31 - 1")]
+    TooManyTriangles(usize),
+    /// A triangle has a NaN or infinite vertex.
+    #[error("triangle {0} has a non-finite vertex")]
+    NonFinite(usize),
+    /// A triangle index names a vertex that does not exist.
+    #[error("triangle {tri} names vertex {index}, but there are only {vertices} vertices")]
+    BadIndex {
+        /// The triangle.
+        tri: usize,
+        /// The vertex index it holds.
+        index: u32,
+        /// Number of vertices.
+        vertices: usize,
+    },
+    /// The BVH2 failed validation against the triangles.
+    #[error("invalid BVH: {0}")]
+    InvalidBvh(ValidateError),
+    /// The collapsed tree is deeper than the traversal stack supports.
+    #[error("wide BVH depth {depth} exceeds the supported maximum {max}")]
+    TooDeep {
+        /// Depth reached.
+        depth: usize,
+        /// [`wide::MAX_DEPTH`].
+        max: usize,
+    },
+    /// The BVH build failed.
+    #[error("BVH build failed: {0}")]
+    Build(String),
+    /// A thread pool could not be created.
+    #[error("cannot create a thread pool: {0}")]
+    ThreadPool(String),
+}

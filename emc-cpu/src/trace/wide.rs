@@ -1,0 +1,220 @@
+//! The tracer's acceleration structure: any validated BVH2 collapsed into a 4-wide BVH whose
+//! child boxes are stored SoA (one SSE register per plane), nodes and triangles laid out in
+//! depth-first order, with the depth bound that sizes every traversal stack checked here.
+
+use emc_core::Aabb;
+use glam::Vec3;
+
+use crate::bvh::Bvh;
+use crate::trace::TraceError;
+
+/// Children per wide node. Four: one SSE register per slab plane. On the target machine
+/// (Zen 1) 256-bit AVX2 operations issue as two 128-bit halves, so an 8-wide node costs as
+/// much per test as two 4-wide ones while visiting more boxes per ray.
+pub const WIDTH: usize = 4;
+
+/// Deepest wide tree the traversal stacks can hold (root at depth 0).
+pub const MAX_DEPTH: usize = 96;
+
+/// Entries of a traversal stack. Popping a node of depth `d` leaves at most `(WIDTH − 1)·d`
+/// waiting siblings and pushes at most `WIDTH` children: `(WIDTH − 1)·(MAX_DEPTH + 1) + 1`.
+pub const STACK_CAPACITY: usize = (WIDTH - 1) * (MAX_DEPTH + 1) + 1;
+
+/// Child code of an unused slot.
+pub const EMPTY: u32 = u32::MAX;
+/// Child code flag of a leaf; the low 31 bits are the leaf's first triangle slot.
+pub const LEAF: u32 = 1 << 31;
+/// Flag on [`WideBvh::ids`] marking the last triangle of a leaf.
+pub const LAST: u32 = 1 << 31;
+
+/// One 4-wide node: 128 bytes, two cache lines, 64-byte aligned.
+///
+/// ```text
+///   bytes   0..96 : lo[x], hi[x], lo[y], hi[y], lo[z], hi[z]   each [f32; 4], lane = child
+///   bytes  96..112: child[4]  inner: node index | leaf: LEAF | first slot | EMPTY
+///   bytes 112..128: padding
+/// ```
+/// An unused lane has the empty box (lo = +inf, hi = −inf), which no ray enters.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(64))]
+pub struct WideNode {
+    /// `planes[2a]` = child minima on axis `a`, `planes[2a + 1]` = child maxima.
+    pub planes: [[f32; WIDTH]; 6],
+    /// Child codes, see the type docs.
+    pub child: [u32; WIDTH],
+    _pad: [u32; 4],
+}
+
+const _: () = assert!(core::mem::size_of::<WideNode>() == 128);
+
+impl WideNode {
+    /// A node with every lane unused.
+    pub fn empty() -> WideNode {
+        let mut planes = [[0.0; WIDTH]; 6];
+        for a in 0..3 {
+            planes[2 * a] = [f32::INFINITY; WIDTH];
+            planes[2 * a + 1] = [f32::NEG_INFINITY; WIDTH];
+        }
+        WideNode {
+            planes,
+            child: [EMPTY; WIDTH],
+            _pad: [0; 4],
+        }
+    }
+
+    fn set(&mut self, lane: usize, b: &Aabb, code: u32) {
+        let (lo, hi) = (b.min.to_array(), b.max.to_array());
+        for a in 0..3 {
+            self.planes[2 * a][lane] = lo[a];
+            self.planes[2 * a + 1][lane] = hi[a];
+        }
+        self.child[lane] = code;
+    }
+
+    /// The box of child `lane` (the empty box for an unused lane).
+    pub fn child_box(&self, lane: usize) -> Aabb {
+        let p = &self.planes;
+        Aabb::new(
+            Vec3::new(p[0][lane], p[2][lane], p[4][lane]),
+            Vec3::new(p[1][lane], p[3][lane], p[5][lane]),
+        )
+    }
+}
+
+/// A 4-wide BVH over a triangle list, ready to trace.
+#[derive(Clone, Debug)]
+pub struct WideBvh {
+    /// Nodes in depth-first pre-order; node 0 is the root.
+    pub nodes: Vec<WideNode>,
+    /// Triangle vertices in leaf order (a leaf's triangles are contiguous).
+    pub tris: Vec<[[f32; 3]; 3]>,
+    /// Triangle ids in leaf order; [`LAST`] marks the last triangle of each leaf.
+    pub ids: Vec<u32>,
+    /// Depth of the wide tree (root alone: 0); at most [`MAX_DEPTH`].
+    pub depth: usize,
+    /// Number of leaves.
+    pub leaves: usize,
+}
+
+impl WideBvh {
+    /// Collapse a BVH2 built over `tris` (triangle `i` = `tris[i]`) into a wide BVH.
+    ///
+    /// The tree is first checked by [`Bvh::validate`] against the triangles' boxes (every
+    /// triangle exactly once, every box contains its subtree), so no hit can be lost; a tree
+    /// deeper than [`MAX_DEPTH`] after collapsing is refused with [`TraceError::TooDeep`].
+    /// Each wide node takes its BVH2 node's two children and repeatedly opens the inner child
+    /// of largest surface area until it has four children or only leaves.
+    pub fn from_bvh2(bvh: &Bvh, tris: &[[Vec3; 3]]) -> Result<WideBvh, TraceError> {
+        if tris.is_empty() {
+            return Err(TraceError::NoTriangles);
+        }
+        if tris.len() >= LAST as usize {
+            return Err(TraceError::TooManyTriangles(tris.len()));
+        }
+        let aabbs: Vec<Aabb> = tris
+            .iter()
+            .map(|t| Aabb::from_triangle(t[0], t[1], t[2]))
+            .collect();
+        if let Some(i) = aabbs.iter().position(|b| !b.is_finite()) {
+            return Err(TraceError::NonFinite(i));
+        }
+        bvh.validate(&aabbs).map_err(TraceError::InvalidBvh)?;
+        let half_area = |b: &Aabb| {
+            let e = b.max - b.min;
+            e.x * e.y + e.y * e.z + e.z * e.x
+        };
+        let mut out = WideBvh {
+            nodes: Vec::with_capacity(bvh.nodes.len() / 2 + 1),
+            tris: Vec::with_capacity(tris.len()),
+            ids: Vec::with_capacity(tris.len()),
+            depth: 0,
+            leaves: 0,
+        };
+        // Work items: (BVH2 node, wide parent index, lane, depth of the new wide node).
+        let mut work: Vec<(u32, usize, usize, usize)> = Vec::new();
+        let root = &bvh.nodes[bvh.root as usize];
+        out.nodes.push(WideNode::empty());
+        if root.is_leaf() {
+            let code = out.emit_leaf(bvh, bvh.root, tris);
+            out.nodes[0].set(0, &root.bounds, code);
+            return Ok(out);
+        }
+        work.push((bvh.root, usize::MAX, 0, 0));
+        while let Some((n2, parent, lane, depth)) = work.pop() {
+            if depth > MAX_DEPTH {
+                return Err(TraceError::TooDeep {
+                    depth,
+                    max: MAX_DEPTH,
+                });
+            }
+            out.depth = out.depth.max(depth);
+            let me = if parent == usize::MAX {
+                0
+            } else {
+                let i = out.nodes.len();
+                out.nodes.push(WideNode::empty());
+                out.nodes[parent].child[lane] = i as u32;
+                i
+            };
+            let node = &bvh.nodes[n2 as usize];
+            let mut kids: Vec<u32> = vec![node.left(), node.right()];
+            while kids.len() < WIDTH {
+                let best = kids
+                    .iter()
+                    .enumerate()
+                    .filter(|(_, &k)| !bvh.nodes[k as usize].is_leaf())
+                    .map(|(i, &k)| (i, half_area(&bvh.nodes[k as usize].bounds)))
+                    .fold(None, |acc: Option<(usize, f32)>, (i, a)| match acc {
+                        Some((_, ba)) if ba >= a => acc,
+                        _ => Some((i, a)),
+                    });
+                let Some((i, _)) = best else { break };
+                let k = bvh.nodes[kids[i] as usize];
+                kids[i] = k.left();
+                kids.insert(i + 1, k.right());
+            }
+            // Leaves first (their triangles follow the parent), then inner children in order.
+            let mut inner = Vec::with_capacity(WIDTH);
+            for (lane, &k) in kids.iter().enumerate() {
+                let kn = &bvh.nodes[k as usize];
+                if kn.is_leaf() {
+                    let code = out.emit_leaf(bvh, k, tris);
+                    out.nodes[me].set(lane, &kn.bounds, code);
+                } else {
+                    out.nodes[me].set(lane, &kn.bounds, EMPTY);
+                    inner.push((k, lane));
+                }
+            }
+            for &(k, lane) in inner.iter().rev() {
+                work.push((k, me, lane, depth + 1));
+            }
+        }
+        Ok(out)
+    }
+
+    fn emit_leaf(&mut self, bvh: &Bvh, n: u32, tris: &[[Vec3; 3]]) -> u32 {
+        let leaf = &bvh.nodes[n as usize];
+        let first = self.tris.len() as u32;
+        let prims = &bvh.prim_indices[leaf.first() as usize..(leaf.first() + leaf.count()) as usize];
+        for (j, &p) in prims.iter().enumerate() {
+            let t = &tris[p as usize];
+            self.tris
+                .push([t[0].to_array(), t[1].to_array(), t[2].to_array()]);
+            let last = if j + 1 == prims.len() { LAST } else { 0 };
+            self.ids.push(p | last);
+        }
+        self.leaves += 1;
+        LEAF | first
+    }
+
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.tris.len()
+    }
+
+    /// Bytes of nodes and triangle data.
+    pub fn memory_bytes(&self) -> usize {
+        self.nodes.len() * core::mem::size_of::<WideNode>()
+            + self.tris.len() * (36 + 4)
+    }
+}
