@@ -240,20 +240,16 @@ impl CentroidBox {
 
     #[inline]
     fn grow(&mut self, c: [f64; 3]) {
-        for a in 0..3 {
-            self.min[a] = self.min[a].min(c[a]);
-            self.max[a] = self.max[a].max(c[a]);
-        }
+        self.min = std::array::from_fn(|a| self.min[a].min(c[a]));
+        self.max = std::array::from_fn(|a| self.max[a].max(c[a]));
     }
 
     #[inline]
     fn union(&self, o: &CentroidBox) -> CentroidBox {
-        let mut u = *self;
-        for a in 0..3 {
-            u.min[a] = u.min[a].min(o.min[a]);
-            u.max[a] = u.max[a].max(o.max[a]);
+        CentroidBox {
+            min: std::array::from_fn(|a| self.min[a].min(o.min[a])),
+            max: std::array::from_fn(|a| self.max[a].max(o.max[a])),
         }
-        u
     }
 }
 
