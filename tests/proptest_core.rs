@@ -208,4 +208,24 @@ proptest! {
             prop_assert_eq!(q.size_by_thresholds(d2), q.size_from_d2(d2), "{:e}", d2);
         }
     }
+
+    /// emc-algorithms.md §3.6: the `emc32-var` code is the top 32 bits of the `emc64-var` code
+    /// (their schedules share 32 positions, and power-of-two scales nest the floors and clamps
+    /// exactly while no channel is wider than 52 bits).
+    #[test]
+    fn emc32_is_the_top_of_emc64(boxes in scene(12), probes in prop::collection::vec(aabb(), 1..16)) {
+        let frame = frame_of(&boxes);
+        let e64 = Encoder::new(&LayoutSpec::Emc64Var, &frame);
+        let e32 = Encoder::new(&LayoutSpec::Emc32Var, &frame);
+        prop_assume!(e64.layout().bit_counts().iter().all(|&b| b <= 52));
+        let all: Vec<Aabb> = boxes.iter().chain(&probes).copied().collect();
+        let mut c64 = vec![0u64; all.len()];
+        let mut c32 = vec![0u32; all.len()];
+        e64.encode_batch(&all, &mut c64).unwrap();
+        e32.encode_batch_u32(&all, &mut c32).unwrap();
+        for ((b, &w), &n) in all.iter().zip(&c64).zip(&c32) {
+            prop_assert_eq!(u64::from(n), w >> 32, "{:?}", b);
+            prop_assert_eq!(e32.encode(b), e64.encode(b) >> 32);
+        }
+    }
 }
