@@ -6,7 +6,9 @@
 #![allow(clippy::needless_range_loop)]
 
 use emc_core::layout::{axes_by_descending_extent, halving_schedule};
-use emc_core::{Backend, Channel, Encoder, Error, Frame, Layout, LayoutSpec, SizeTransform};
+use emc_core::{
+    Backend, Channel, Encoder, Error, Frame, Layout, LayoutSpec, Normalization, SizeTransform,
+};
 use emc_tests::{bx, ones, pt, EXTENTS};
 
 const NAMES: [&str; 6] = [
@@ -467,4 +469,35 @@ fn masks_partition_the_code() {
         assert_eq!(l.bit_counts().iter().sum::<u32>(), l.len());
         assert_eq!(l.fits_u32(), l.len() <= 32);
     }
+}
+
+/// Backend and normalisation names (CLI and CSV spellings) round trip; unknown names are
+/// refused with a message that lists the known ones.
+#[test]
+fn backend_and_normalization_names() {
+    for b in Backend::ALL {
+        assert_eq!(b.to_string(), b.name());
+        assert_eq!(b.name().parse::<Backend>(), Ok(b));
+    }
+    for bad in ["", "Table", "avx2", "pdep ", "bmi2"] {
+        let err = bad.parse::<Backend>().unwrap_err();
+        assert_eq!(err, Error::UnknownBackend, "{bad:?}");
+        assert_eq!(
+            err.to_string(),
+            "unknown backend (expected reference, magic, table or pdep)"
+        );
+    }
+    for n in [
+        Normalization::CentroidBox,
+        Normalization::PrimitiveBox,
+        Normalization::Cube,
+    ] {
+        assert_eq!(n.to_string().parse::<Normalization>(), Ok(n));
+    }
+    assert_eq!("centroid".parse(), Ok(Normalization::CentroidBox));
+    assert_eq!("primitive".parse(), Ok(Normalization::PrimitiveBox));
+    assert_eq!(
+        "sphere".parse::<Normalization>(),
+        Err(Error::BadLayoutOption)
+    );
 }

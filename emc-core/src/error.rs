@@ -34,6 +34,8 @@ pub enum Error {
     CodeTooWide(u32),
     /// A backend that was forced but cannot serve this layout on this CPU.
     BackendUnavailable(crate::Backend),
+    /// A backend name that is not one of `reference`, `magic`, `table`, `pdep`.
+    UnknownBackend,
     /// A quantise path that was forced but cannot serve this layout on this CPU (AVX2 needs
     /// x86_64 with AVX2 and channels of at most 31 bits).
     QuantizeUnavailable(crate::simd::QuantizePath),
@@ -87,6 +89,10 @@ impl fmt::Display for Error {
             Error::BackendUnavailable(b) => {
                 write!(f, "backend {b} cannot serve this layout on this CPU")
             }
+            Error::UnknownBackend => write!(
+                f,
+                "unknown backend (expected reference, magic, table or pdep)"
+            ),
             Error::QuantizeUnavailable(q) => write!(
                 f,
                 "quantize path {q} cannot serve this layout on this CPU (avx2 needs x86_64 \

@@ -61,11 +61,12 @@ impl fmt::Display for Backend {
 
 impl FromStr for Backend {
     type Err = Error;
+    /// Parse a lower-case backend name; [`Error::UnknownBackend`] for anything else.
     fn from_str(s: &str) -> Result<Self, Error> {
         Backend::ALL
             .into_iter()
             .find(|b| b.name() == s)
-            .ok_or(Error::BackendUnavailable(Backend::Reference))
+            .ok_or(Error::UnknownBackend)
     }
 }
 
