@@ -3,7 +3,7 @@
 //!
 //! | backend | patterns | cost on a microcoded-pdep CPU (Zen 1) |
 //! |---|---|---|
-//! | [`reference`] | any | a bit loop: the oracle |
+//! | [`mod@reference`] | any | a bit loop: the oracle |
 //! | [`magic`] | regular (`(xyz)^n`, `(a0 a1 a2 s)^16`, …) | shifts and masks |
 //! | [`table`] | any | one load per byte of each channel |
 //! | `pdep` (x86_64) | any | one instruction per channel where pdep is fast |
