@@ -116,7 +116,7 @@ fn max_ps(a: f32, b: f32) -> f32 {
 }
 
 /// The box of one triangle as every path computes it: `min(min(a, b), c)` per axis with
-/// [`min_ps`] semantics (equal to [`Aabb::from_triangle`] up to the sign of zero).
+/// `minps` semantics, `a < b ? a : b` (equal to [`Aabb::from_triangle`] up to the sign of zero).
 #[inline(always)]
 pub fn triangle_aabb(a: Vec3, b: Vec3, c: Vec3) -> Aabb {
     Aabb {

@@ -29,8 +29,8 @@ fn scene_name(path: &Path) -> String {
     f.strip_suffix(".obj").unwrap_or(f).to_string()
 }
 
-/// Read the whole file, decompressing it when its name ends in `.zst`.
-fn read_file(path: &Path) -> Result<Vec<u8>, SceneError> {
+/// Read the whole file, decompressing it when its name ends in `.zst` (128 MiB window).
+pub fn read_file(path: &Path) -> Result<Vec<u8>, SceneError> {
     let open = |e| SceneError::Open {
         path: path.to_path_buf(),
         source: e,
@@ -184,57 +184,220 @@ pub fn save_obj(scene: &Scene, path: &Path) -> Result<(), SceneError> {
     Ok(())
 }
 
+/// The line check alone (what [`parse_obj_bytes`] runs next to `tobj`): the first malformed
+/// line as a [`SceneError::Malformed`] naming `path`.
+pub fn check_obj_bytes(bytes: &[u8], path: &Path) -> Result<(), SceneError> {
+    check_lines(bytes).map_err(|(line, message)| malformed(path, line, message))
+}
+
 /// Counts of the elements defined so far (OBJ indices refer to them).
-#[derive(Default)]
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
 struct Counts {
-    /// Whether the first `v` line had r g b colours (`tobj` needs all or none).
-    coloured: Option<bool>,
     v: usize,
     vt: usize,
     vn: usize,
 }
 
+impl Counts {
+    fn get(&self, kind: usize) -> usize {
+        [self.v, self.vt, self.vn][kind]
+    }
+}
+
+/// Bytes per chunk of the parallel line check (a chunk ends after a newline).
+const CHECK_CHUNK: usize = 4 << 20;
+
+/// What checking one chunk of lines found.
+///
+/// Without the element counts of the lines before the chunk (the first, parallel pass) an
+/// index can only be checked relative to them: a reference to element `x` (or `-x`) on a line
+/// where the chunk itself has defined `c` elements of that kind needs at least `x - c` before
+/// the chunk; `need` keeps the largest such value per kind (v, vt, vn).
+#[derive(Debug, Default)]
+struct ChunkCheck {
+    /// Newlines in the chunk (lines it covers, when it ends after a newline).
+    lines: usize,
+    /// Elements the chunk defines.
+    counts: Counts,
+    /// Colour form of the chunk's first `v` line and that line (0-based in the chunk).
+    first_v: Option<(bool, usize)>,
+    /// The first local error: 0-based line in the chunk and message.
+    error: Option<(usize, String)>,
+    /// Largest number of elements needed before the chunk, per kind.
+    need: [usize; 3],
+}
+
 /// The line check: `Err((1-based line, message))` for the first malformed line.
 fn check_lines(bytes: &[u8]) -> Result<(), (usize, String)> {
+    check_lines_chunked(bytes, CHECK_CHUNK)
+}
+
+/// The single-chunk (serial) line check.
+fn check_lines_serial(bytes: &[u8]) -> Result<(), (usize, String)> {
+    let c = check_chunk(bytes, Some((Counts::default(), None)));
+    c.error.map_or(Ok(()), |(l, m)| Err((l + 1, m)))
+}
+
+/// [`check_lines`] with chunks of about `chunk` bytes, checked in parallel; the same answer as
+/// [`check_lines_serial`] for every chunk size.
+fn check_lines_chunked(bytes: &[u8], chunk: usize) -> Result<(), (usize, String)> {
     if let Err(e) = std::str::from_utf8(bytes) {
         let at = e.valid_up_to();
-        let line = 1 + bytes[..at].iter().filter(|&&b| b == b'\n').count();
+        let line = 1 + memchr::memchr_iter(b'\n', &bytes[..at]).count();
         return Err((line, "invalid UTF-8".to_string()));
     }
-    let mut counts = Counts::default();
-    for (k, raw) in bytes.split(|&b| b == b'\n').enumerate() {
-        check_line(raw, &mut counts).map_err(|m| (k + 1, m))?;
+    // Chunks ending after a newline.
+    let mut bounds = vec![0usize];
+    while let Some(&last) = bounds.last() {
+        if last >= bytes.len() {
+            break;
+        }
+        let target = (last + chunk.max(1)).min(bytes.len());
+        let end = match memchr::memchr(b'\n', &bytes[target..]) {
+            Some(k) if target < bytes.len() => target + k + 1,
+            _ => bytes.len(),
+        };
+        bounds.push(end);
+    }
+    if bounds.len() <= 2 {
+        return check_lines_serial(bytes);
+    }
+    use rayon::prelude::*;
+    let checks: Vec<ChunkCheck> = bounds
+        .par_windows(2)
+        .map(|w| check_chunk(&bytes[w[0]..w[1]], None))
+        .collect();
+    // In order: the first chunk with an error (local, colour, or an index that the elements
+    // before it cannot satisfy) holds the first malformed line of the file.
+    let mut before = Counts::default();
+    let mut line0 = 0usize;
+    let mut colour: Option<bool> = None;
+    for (k, c) in checks.iter().enumerate() {
+        let range_bad = (0..3).any(|kind| c.need[kind] > before.get(kind));
+        let colour_bad = matches!((colour, c.first_v), (Some(g), Some((f, _))) if g != f);
+        if range_bad || colour_bad || c.error.is_some() {
+            // Re-check the chunk knowing what precedes it: it finds the first bad line.
+            let exact = check_chunk(&bytes[bounds[k]..bounds[k + 1]], Some((before, colour)));
+            let (l, m) = exact
+                .error
+                .expect("a chunk flagged in the first pass has an error in the second");
+            return Err((line0 + l + 1, m));
+        }
+        if colour.is_none() {
+            colour = c.first_v.map(|(f, _)| f);
+        }
+        before.v += c.counts.v;
+        before.vt += c.counts.vt;
+        before.vn += c.counts.vn;
+        line0 += c.lines;
     }
     Ok(())
 }
 
-#[inline]
-fn words(line: &[u8]) -> impl Iterator<Item = &[u8]> {
-    line.split(|b| b.is_ascii_whitespace())
-        .filter(|w| !w.is_empty())
-}
-
+/// A token for an error message.
 fn show(w: &[u8]) -> String {
     String::from_utf8_lossy(w).into_owned()
 }
 
-/// Check one line; counts are advanced for vertex lines.
+/// ASCII whitespace except the newline.
+#[inline(always)]
+fn is_blank(b: u8) -> bool {
+    matches!(b, b' ' | b'\t' | b'\r' | b'\x0b' | b'\x0c')
+}
+
+/// The whitespace-separated words of one line.
+struct Words<'a> {
+    b: &'a [u8],
+    i: usize,
+}
+
+impl<'a> Iterator for Words<'a> {
+    type Item = &'a [u8];
+
+    #[inline(always)]
+    fn next(&mut self) -> Option<&'a [u8]> {
+        let (b, n) = (self.b, self.b.len());
+        let mut i = self.i;
+        while i < n && is_blank(b[i]) {
+            i += 1;
+        }
+        if i == n {
+            self.i = i;
+            return None;
+        }
+        let s = i;
+        while i < n && !is_blank(b[i]) {
+            i += 1;
+        }
+        self.i = i;
+        Some(&b[s..i])
+    }
+}
+
+/// Check the lines of one chunk.
+///
+/// With `known = Some((counts before the chunk, colour form of the file's first vertex))`
+/// every check is exact and `error` is the first malformed line; with `None` (first pass)
+/// index ranges are only gathered into `need` and the colour form is taken from the chunk.
+fn check_chunk(b: &[u8], known: Option<(Counts, Option<bool>)>) -> ChunkCheck {
+    let mut st = LineState {
+        known_before: known.map(|k| k.0),
+        colour: known.and_then(|k| k.1),
+        counts: Counts::default(),
+        need: [0; 3],
+        first_v: None,
+        line: 0,
+    };
+    let mut cur = 0usize;
+    let mut error = None;
+    while cur < b.len() {
+        let end = memchr::memchr(b'\n', &b[cur..]).map_or(b.len(), |k| cur + k);
+        if let Err(m) = check_line(&b[cur..end], &mut st) {
+            error = Some((st.line, m));
+            break;
+        }
+        st.line += 1;
+        cur = end + 1;
+    }
+    ChunkCheck {
+        lines: st.line,
+        counts: st.counts,
+        first_v: st.first_v,
+        error,
+        need: st.need,
+    }
+}
+
+/// The running state of [`check_chunk`].
+struct LineState {
+    known_before: Option<Counts>,
+    colour: Option<bool>,
+    counts: Counts,
+    need: [usize; 3],
+    first_v: Option<(bool, usize)>,
+    line: usize,
+}
+
+/// Check one line (without its newline); counts are advanced for element lines.
 #[inline]
-fn check_line(line: &[u8], c: &mut Counts) -> Result<(), String> {
-    // Fast exits: blank lines, comments and anything not starting with v/f/l/u.
-    match line.first() {
+fn check_line(line: &[u8], st: &mut LineState) -> Result<(), String> {
+    let mut w = Words { b: line, i: 0 };
+    // Fast exit for anything that cannot start one of the checked keywords.
+    match line.iter().find(|&&c| !is_blank(c)) {
         Some(b'v' | b'f' | b'l' | b'u') => {}
-        Some(b) if b.is_ascii_whitespace() => {}
         _ => return Ok(()),
     }
-    let mut w = words(line);
     let Some(key) = w.next() else { return Ok(()) };
     match key {
         b"v" => {
             let mut n = 0;
+            let mut fourth: &[u8] = &[];
             for t in w {
                 if !is_float(t) {
                     return Err(format!("vertex: `{}` is not a number", show(t)));
+                }
+                if n == 3 {
+                    fourth = t;
                 }
                 n += 1;
             }
@@ -242,25 +405,34 @@ fn check_line(line: &[u8], c: &mut Counts) -> Result<(), String> {
                 0..=2 => Err(format!("vertex: expected 3 coordinates, found {n}")),
                 3 | 6 => {
                     let coloured = n == 6;
-                    if *c.coloured.get_or_insert(coloured) != coloured {
+                    if st.first_v.is_none() {
+                        st.first_v = Some((coloured, st.line));
+                    }
+                    if *st.colour.get_or_insert(coloured) != coloured {
                         return Err(format!(
                             "vertex: r g b colours must be on every vertex or none (first \
                              vertex {} them)",
                             if coloured { "lacks" } else { "has" }
                         ));
                     }
-                    c.v += 1;
+                    st.counts.v += 1;
                     Ok(())
                 }
                 4 => {
                     // A lone fourth value is a homogeneous w that divides x, y and z.
-                    let wv = words(line).nth(4).map(parse_f32).unwrap_or(1.0);
-                    if wv == 0.0 {
-                        Err("vertex: homogeneous w = 0".to_string())
-                    } else {
-                        c.v += 1;
-                        Ok(())
+                    if parse_f32(fourth) == 0.0 {
+                        return Err("vertex: homogeneous w = 0".to_string());
                     }
+                    if st.first_v.is_none() {
+                        st.first_v = Some((false, st.line));
+                    }
+                    if *st.colour.get_or_insert(false) {
+                        return Err("vertex: r g b colours must be on every vertex or none \
+                                    (first vertex has them)"
+                            .to_string());
+                    }
+                    st.counts.v += 1;
+                    Ok(())
                 }
                 _ => Err(format!(
                     "vertex: expected 3 coordinates (+ w or r g b), found {n} numbers"
@@ -280,9 +452,9 @@ fn check_line(line: &[u8], c: &mut Counts) -> Result<(), String> {
                 return Err(format!("{}: expected {need} numbers, found {n}", show(key)));
             }
             if key == b"vt" {
-                c.vt += 1;
+                st.counts.vt += 1;
             } else {
-                c.vn += 1;
+                st.counts.vn += 1;
             }
             Ok(())
         }
@@ -291,7 +463,7 @@ fn check_line(line: &[u8], c: &mut Counts) -> Result<(), String> {
             let need = if key == b"f" { 3 } else { 2 };
             let mut n = 0;
             for t in w {
-                check_ref(t, c).map_err(|m| format!("{what}: {m}"))?;
+                check_ref(t, st).map_err(|m| format!("{what}: {m}"))?;
                 n += 1;
             }
             if n < need {
@@ -311,24 +483,29 @@ fn check_line(line: &[u8], c: &mut Counts) -> Result<(), String> {
     }
 }
 
-/// Check one `v`, `v/vt`, `v//vn` or `v/vt/vn` reference against the counts so far.
+/// Check one `v`, `v/vt`, `v//vn` or `v/vt/vn` reference.
 #[inline]
-fn check_ref(t: &[u8], c: &Counts) -> Result<(), String> {
-    if t.iter().filter(|&&b| b == b'/').count() > 2 {
-        return Err(format!("`{}` has more than three `/` parts", show(t)));
-    }
-    let mut parts = t.split(|&b| b == b'/');
-    let kinds = [
-        ("vertex", c.v),
-        ("texture coordinate", c.vt),
-        ("normal", c.vn),
-    ];
-    for (k, (kind, count)) in kinds.iter().enumerate() {
-        let Some(p) = parts.next() else { break };
-        if p.is_empty() {
-            if k == 0 {
-                return Err(format!("`{}` has no vertex index", show(t)));
+fn check_ref(t: &[u8], st: &mut LineState) -> Result<(), String> {
+    const KINDS: [&str; 3] = ["vertex", "texture coordinate", "normal"];
+    let mut parts: [&[u8]; 3] = [&[]; 3];
+    let mut k = 0;
+    let mut s = 0;
+    for (i, &c) in t.iter().enumerate() {
+        if c == b'/' {
+            if k == 2 {
+                return Err(format!("`{}` has more than three `/` parts", show(t)));
             }
+            parts[k] = &t[s..i];
+            k += 1;
+            s = i + 1;
+        }
+    }
+    parts[k] = &t[s..];
+    if parts[0].is_empty() {
+        return Err(format!("`{}` has no vertex index", show(t)));
+    }
+    for (kind, p) in parts.iter().enumerate().take(k + 1) {
+        if p.is_empty() {
             continue;
         }
         let Some(x) = parse_index(p) else {
@@ -336,20 +513,30 @@ fn check_ref(t: &[u8], c: &Counts) -> Result<(), String> {
         };
         if x == 0 {
             return Err(format!(
-                "{kind} index 0 in `{}` (indices start at 1)",
+                "{} index 0 in `{}` (indices start at 1)",
+                KINDS[kind],
                 show(t)
             ));
         }
-        let ok = if x > 0 {
-            x as u64 <= *count as u64
-        } else {
-            x.unsigned_abs() <= *count as u64
-        };
-        if !ok {
-            return Err(format!(
-                "{kind} index {x} in `{}` is out of range ({count} defined so far)",
-                show(t)
-            ));
+        let here = st.counts.get(kind);
+        let wanted = x.unsigned_abs();
+        match st.known_before {
+            Some(before) => {
+                let defined = before.get(kind) + here;
+                if wanted > defined as u64 {
+                    return Err(format!(
+                        "{} index {x} in `{}` is out of range ({defined} defined so far)",
+                        KINDS[kind],
+                        show(t)
+                    ));
+                }
+            }
+            None => {
+                let need = usize::try_from(wanted)
+                    .unwrap_or(usize::MAX)
+                    .saturating_sub(here);
+                st.need[kind] = st.need[kind].max(need);
+            }
         }
     }
     Ok(())
@@ -467,6 +654,49 @@ mod tests {
                 "token `{c}`"
             );
         }
+    }
+
+    /// The parallel chunked check gives the serial answer (line and message) for every chunk
+    /// size, on valid files and on random damage of them.
+    #[test]
+    fn chunked_check_equals_serial() {
+        let good = "# head\nv 0 0 0 1 0 0\nv 1 0 0 1 0 0\nv 0 1 0 0 1 0\nvt 0 0\nvn 0 0 1\n\
+                    f 1/1/1 2/1/1 3/1/1\ng g\nv 0 0 1 1 1 1\nf -1 -2 -3\nf 4 1 2 3\n\
+                    l 1 2\nusemtl m\nv 2 2 2 0 0 0\nf 5//1 4//1 -1//1\n";
+        let mut rng = crate::scene::builtin::Pcg32::new(3, 3);
+        let alphabet = b"vfnt/ -0123456789.e\n#xlg";
+        let mut inputs: Vec<Vec<u8>> = vec![good.as_bytes().to_vec()];
+        for _ in 0..400 {
+            let mut b = good.as_bytes().to_vec();
+            for _ in 0..1 + rng.next_u32() % 3 {
+                let at = rng.next_u32() as usize % b.len();
+                let c = alphabet[rng.next_u32() as usize % alphabet.len()];
+                match rng.next_u32() % 3 {
+                    0 => b[at] = c,
+                    1 => b.insert(at, c),
+                    _ => {
+                        b.remove(at);
+                    }
+                }
+            }
+            inputs.push(b);
+        }
+        let mut errors = 0;
+        for b in &inputs {
+            let serial = check_lines_serial(b);
+            errors += serial.is_err() as usize;
+            for chunk in [1, 2, 3, 5, 8, 13, 40, 1000] {
+                assert_eq!(
+                    check_lines_chunked(b, chunk),
+                    serial,
+                    "chunk {chunk}: {:?}",
+                    String::from_utf8_lossy(b)
+                );
+            }
+        }
+        assert!(check_lines_serial(good.as_bytes()).is_ok());
+        // The damage hits both outcomes often.
+        assert!(errors > 50 && errors < 390, "{errors}");
     }
 
     #[test]
