@@ -11,7 +11,7 @@ use emc_cpu::build::{
     build_aabbs, encode_codes, encoder_for, lbvh_tree, sort_codes, BuildOptions, BuildOutput,
     Builder,
 };
-use emc_cpu::bvh::refit::{CollapseParams, RadixTree};
+use emc_cpu::bvh::refit::{gather_sorted, CollapseParams, RadixTree};
 use emc_cpu::bvh::{sah_cost, Bvh, Node, SahConstants};
 use emc_cpu::scene::{load, load_with, shared_scene_path, SceneOptions};
 use emc_cpu::sort::sort_pairs;
@@ -111,8 +111,9 @@ fn karras_vs_apetrei_keys(keys: Vec<u64>) {
         .collect();
     let (keys, order, _) = sort_codes(keys).unwrap();
     let k = CollapseParams::default();
-    let kt = lbvh_tree(Builder::Lbvh, &keys, &boxes, &order, &k);
-    let at = lbvh_tree(Builder::LbvhApetrei, &keys, &boxes, &order, &k);
+    let sorted = gather_sorted(&boxes, &order);
+    let kt = lbvh_tree(Builder::Lbvh, &keys, &sorted, &k);
+    let at = lbvh_tree(Builder::LbvhApetrei, &keys, &sorted, &k);
     assert_same_tree(&kt, &at);
 }
 
@@ -196,8 +197,9 @@ fn karras_equals_apetrei_on_real_layouts() {
             let codes = encode_codes(&enc, &aabbs).unwrap();
             let (keys, order, _) = sort_codes(codes).unwrap();
             let k = CollapseParams::default();
-            let kt = lbvh_tree(Builder::Lbvh, &keys, &aabbs, &order, &k);
-            let at = lbvh_tree(Builder::LbvhApetrei, &keys, &aabbs, &order, &k);
+            let sorted = gather_sorted(&aabbs, &order);
+            let kt = lbvh_tree(Builder::Lbvh, &keys, &sorted, &k);
+            let at = lbvh_tree(Builder::LbvhApetrei, &keys, &sorted, &k);
             assert_same_tree(&kt, &at);
         }
     }

@@ -13,7 +13,7 @@ use crate::bvh::apetrei::build_apetrei;
 use crate::bvh::binned_sah::{build_binned_sah, BinnedSahError, DEFAULT_BINS};
 use crate::bvh::collapse::{collapse_bvh, emit};
 use crate::bvh::karras::build_karras;
-use crate::bvh::refit::{refit, CollapseParams, RadixTree};
+use crate::bvh::refit::{gather_sorted, refit, CollapseParams, RadixTree};
 use crate::bvh::{sah_cost, sah_headline, Bvh, SahConstants};
 use crate::scene::Scene;
 use crate::sort::{sort_pairs, RadixKey, SortError, SortReport};
@@ -338,7 +338,7 @@ pub fn encoder_for(aabbs: &[Aabb], layout: &LayoutSpec) -> Result<Encoder, Build
 
 /// Codes of the boxes in parallel (64-bit words for every layout).
 pub fn encode_codes(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u64>, BuildError> {
-    let mut codes = vec![0u64; aabbs.len()];
+    let mut codes = crate::hugepage::filled(aabbs.len(), 0u64);
     codes
         .par_chunks_mut(CHUNK)
         .zip(aabbs.par_chunks(CHUNK))
@@ -348,7 +348,7 @@ pub fn encode_codes(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u64>, BuildErro
 
 /// Codes of the boxes as `u32` (layouts of at most 32 bits).
 fn encode_codes_u32(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u32>, BuildError> {
-    let mut codes = vec![0u32; aabbs.len()];
+    let mut codes = crate::hugepage::filled(aabbs.len(), 0u32);
     codes
         .par_chunks_mut(CHUNK)
         .zip(aabbs.par_chunks(CHUNK))
@@ -360,25 +360,25 @@ fn encode_codes_u32(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u32>, BuildErro
 pub fn sort_codes<K: RadixKey>(
     mut keys: Vec<K>,
 ) -> Result<(Vec<K>, Vec<u32>, SortReport), BuildError> {
-    let mut ids: Vec<u32> = (0..keys.len() as u32).collect();
+    let mut ids: Vec<u32> = crate::hugepage::from_fn(keys.len(), |i| i as u32);
     let r = sort_pairs(&mut keys, &mut ids)?;
     Ok((keys, ids, r))
 }
 
 /// The radix tree of sorted codes by the chosen LBVH builder, finished by the bottom-up pass
-/// (bounds, counts, collapse decisions). Not for [`Builder::BinnedSah`] (treated as `lbvh`).
+/// (bounds, counts, collapse decisions); `sorted[p]` is the box at sorted position `p` (see
+/// [`gather_sorted`]). Not for [`Builder::BinnedSah`] (treated as `lbvh`).
 pub fn lbvh_tree<K: RadixKey>(
     builder: Builder,
     keys: &[K],
-    aabbs: &[Aabb],
-    order: &[u32],
+    sorted: &[Aabb],
     k: &CollapseParams,
 ) -> RadixTree {
     match builder {
-        Builder::LbvhApetrei => build_apetrei(keys, aabbs, order, k),
+        Builder::LbvhApetrei => build_apetrei(keys, sorted, k),
         _ => {
             let t = build_karras(keys);
-            refit(&t, aabbs, order, k);
+            refit(&t, sorted, k);
             t
         }
     }
@@ -392,7 +392,7 @@ pub fn build_scene(scene: &Scene, opts: &BuildOptions) -> Result<BuildOutput, Bu
         return Err(BuildError::Empty);
     }
     let aabbs = timed.run(Phase::Aabb, || {
-        let mut out = vec![Aabb::EMPTY; n];
+        let mut out = crate::hugepage::filled(n, Aabb::EMPTY);
         crate::aabbs::triangle_aabbs(&scene.vertices, &scene.indices, &mut out);
         out
     });
@@ -458,20 +458,25 @@ fn lbvh_phases<K: RadixKey>(
 ) -> Result<(Bvh, SortReport, f64), BuildError> {
     let k = opts.collapse;
     let (keys, order, sort) = timed.run(Phase::Sort, || sort_codes(codes))?;
-    let tree = match opts.builder {
-        Builder::LbvhApetrei => {
-            timed.run(Phase::Hierarchy, || build_apetrei(&keys, aabbs, &order, &k))
-        }
+    let (tree, sorted) = match opts.builder {
+        Builder::LbvhApetrei => timed.run(Phase::Hierarchy, || {
+            let sorted = gather_sorted(aabbs, &order);
+            (build_apetrei(&keys, &sorted, &k), sorted)
+        }),
         _ => {
             let t = timed.run(Phase::Hierarchy, || build_karras(&keys));
-            timed.run(Phase::Bounds, || refit(&t, aabbs, &order, &k));
-            t
+            let sorted = timed.run(Phase::Bounds, || {
+                let sorted = gather_sorted(aabbs, &order);
+                refit(&t, &sorted, &k);
+                sorted
+            });
+            (t, sorted)
         }
     };
     drop(keys);
     let headline = timed.pool.install(|| tree.sah_headline(aabbs));
-    let (bvh, _depth) = timed.run(Phase::Collapse, || emit(&tree, aabbs, order));
-    timed.pool.install(move || drop(tree));
+    let (bvh, _depth) = timed.run(Phase::Collapse, || emit(&tree, &sorted, order));
+    timed.pool.install(move || drop((tree, sorted)));
     Ok((bvh, sort, headline))
 }
 

@@ -7,6 +7,7 @@ pub mod aabbs;
 pub mod build;
 pub mod bvh;
 pub mod cli;
+pub mod hugepage;
 pub mod encode;
 pub mod scene;
 pub mod sort;

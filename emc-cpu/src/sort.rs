@@ -29,7 +29,7 @@ impl RadixKey for u64 {
     }
     #[inline(always)]
     fn widen(self) -> u64 {
-        self as u64
+        self
     }
 }
 
@@ -153,11 +153,11 @@ pub fn sort_pairs<K: RadixKey>(
         }
     }
 
-    let mut kbuf: Vec<K> = vec![K::default(); n];
-    let mut vbuf: Vec<u32> = vec![0; n];
+    let mut kbuf: Vec<K> = crate::hugepage::filled(n, K::default());
+    let mut vbuf: Vec<u32> = crate::hugepage::filled(n, 0);
     let mut first_done = false;
     for pass in 0..K::BYTES {
-        if totals[pass].iter().any(|&t| t == n) {
+        if totals[pass].contains(&n) {
             report.skipped += 1;
             continue;
         }

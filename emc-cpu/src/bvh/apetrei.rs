@@ -24,19 +24,14 @@ fn dist<K: RadixKey>(keys: &[K], k: usize) -> (u64, u32) {
 }
 
 /// Build topology and finished slots in one bottom-up pass over `keys` (sorted ascending, 1 to
-/// `u32::MAX` keys); `order[p]` is the primitive at sorted position `p`, `aabbs` their boxes.
+/// `u32::MAX` keys); `sorted[p]` is the box of the primitive at sorted position `p`.
 ///
 /// Each leaf climbs while it is the second to reach a node: it records itself as the node's
 /// left or right child, then swaps its own range end into the node's `other` slot (`AcqRel`).
 /// The first arrival reads `NONE` and stops; the second reads the first's range end, extends
 /// its range, and — the acquire half having made the first child's slot visible — finishes the
 /// node and climbs on.
-pub fn build_apetrei<K: RadixKey>(
-    keys: &[K],
-    aabbs: &[Aabb],
-    order: &[u32],
-    k: &CollapseParams,
-) -> RadixTree {
+pub fn build_apetrei<K: RadixKey>(keys: &[K], sorted: &[Aabb], k: &CollapseParams) -> RadixTree {
     let n = keys.len().max(1);
     let mut tree = RadixTree::with_leaves(n, false);
     if keys.len() < 2 {
@@ -79,7 +74,7 @@ pub fn build_apetrei<K: RadixKey>(
                         lo = prev as usize;
                     }
                     let (l, r) = tree.children_of(parent as u32);
-                    tree.finish(parent as u32, l, r, aabbs, order, k);
+                    tree.finish(parent as u32, l, r, sorted, k);
                     cur = parent as u32;
                 }
             });
@@ -99,8 +94,7 @@ mod tests {
             0b00001, 0b00010, 0b00100, 0b00101, 0b10011, 0b11000, 0b11001, 0b11110,
         ];
         let boxes: Vec<Aabb> = (0..8).map(|i| Aabb::point(Vec3::splat(i as f32))).collect();
-        let order: Vec<u32> = (0..8).collect();
-        let t = build_apetrei(&keys, &boxes, &order, &CollapseParams::NONE);
+        let t = build_apetrei(&keys, &boxes, &CollapseParams::NONE);
         let l = |p: u32| 7 + p;
         assert_eq!(t.root, 3);
         assert_eq!(t.children_of(1), (0, 2));

@@ -23,19 +23,14 @@ struct Task {
 /// Output-subtree size of node id `c` of `tree`.
 #[inline]
 fn out_of(tree: &RadixTree, c: u32) -> u32 {
-    if tree.is_leaf(c) {
-        1
-    } else {
-        tree.slots[c as usize].load().out
-    }
+    tree.out_of(c)
 }
 
 /// Write node `t` into `dst` (at `t.pos − base`) and return its children's tasks, if any.
 #[inline]
 fn emit_one(
     tree: &RadixTree,
-    aabbs: &[Aabb],
-    order: &[u32],
+    sorted: &[Aabb],
     t: Task,
     dst: &mut [Node],
     base: u32,
@@ -43,7 +38,7 @@ fn emit_one(
     let at = (t.pos - base) as usize;
     if tree.is_leaf(t.node) {
         let p = t.node as usize - (tree.n - 1);
-        dst[at] = Node::leaf(aabbs[order[p] as usize], p as u32, 1);
+        dst[at] = Node::leaf(sorted[p], p as u32, 1);
         return None;
     }
     let s: SlotData = tree.slots[t.node as usize].load();
@@ -72,12 +67,12 @@ fn emit_one(
 
 /// Write the subtree of `t` into `dst`, whose first element is output position `t.pos`;
 /// returns the largest leaf depth.
-fn emit_subtree(tree: &RadixTree, aabbs: &[Aabb], order: &[u32], t: Task, dst: &mut [Node]) -> u32 {
+fn emit_subtree(tree: &RadixTree, sorted: &[Aabb], t: Task, dst: &mut [Node]) -> u32 {
     let base = t.pos;
     let mut depth = 0;
     let mut stack = vec![t];
     while let Some(t) = stack.pop() {
-        match emit_one(tree, aabbs, order, t, dst, base) {
+        match emit_one(tree, sorted, t, dst, base) {
             Some(ch) => stack.extend_from_slice(&ch),
             None => depth = depth.max(t.depth),
         }
@@ -86,9 +81,10 @@ fn emit_subtree(tree: &RadixTree, aabbs: &[Aabb], order: &[u32], t: Task, dst: &
 }
 
 /// Emit the collapsed tree (decisions already taken by the bottom-up pass with the same
-/// [`CollapseParams`]) as a [`Bvh`] in depth-first order; `order` becomes its primitive order
-/// (every subtree covers a contiguous run of sorted positions). Returns the BVH and its depth.
-pub fn emit(tree: &RadixTree, aabbs: &[Aabb], order: Vec<u32>) -> (Bvh, usize) {
+/// [`CollapseParams`]) as a [`Bvh`] in depth-first order; `sorted` holds the primitive boxes in
+/// sorted order and `order` (sorted position → primitive) becomes the primitive order (every
+/// subtree covers a contiguous run of sorted positions). Returns the BVH and its depth.
+pub fn emit(tree: &RadixTree, sorted: &[Aabb], order: Vec<u32>) -> (Bvh, usize) {
     let total = out_of(tree, tree.root) as usize;
     let mut nodes = vec![Node::default(); total];
     let cutoff = (total / (rayon::current_num_threads() * 8)).max(MIN_TASK_NODES) as u32;
@@ -105,7 +101,7 @@ pub fn emit(tree: &RadixTree, aabbs: &[Aabb], order: Vec<u32>) -> (Bvh, usize) {
             tasks.push(t);
             continue;
         }
-        match emit_one(tree, aabbs, &order, t, &mut nodes, 0) {
+        match emit_one(tree, sorted, t, &mut nodes, 0) {
             Some(ch) => stack.extend_from_slice(&ch),
             None => depth = depth.max(t.depth),
         }
@@ -125,7 +121,7 @@ pub fn emit(tree: &RadixTree, aabbs: &[Aabb], order: Vec<u32>) -> (Bvh, usize) {
     }
     let sub_depth = jobs
         .into_par_iter()
-        .map(|(t, dst)| emit_subtree(tree, aabbs, &order, t, dst))
+        .map(|(t, dst)| emit_subtree(tree, sorted, t, dst))
         .max()
         .unwrap_or(0);
     let depth = depth.max(sub_depth) as usize;

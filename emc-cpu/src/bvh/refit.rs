@@ -125,10 +125,21 @@ pub struct RadixTree {
     pub root: u32,
 }
 
-/// Leaf box, count and cost of sorted position `p`.
+/// The primitive boxes in sorted order (`sorted[p] = aabbs[order[p]]`), gathered in parallel
+/// once so that the tree passes read leaves sequentially instead of chasing `order`.
+pub fn gather_sorted(aabbs: &[Aabb], order: &[u32]) -> Vec<Aabb> {
+    crate::hugepage::collect(
+        order
+            .par_iter()
+            .with_min_len(1 << 14)
+            .map(|&i| aabbs[i as usize]),
+    )
+}
+
+/// Leaf box, count and cost of sorted position `p` (`sorted` as from [`gather_sorted`]).
 #[inline]
-pub(crate) fn leaf_data(aabbs: &[Aabb], order: &[u32], p: usize, k: &CollapseParams) -> SlotData {
-    let b = aabbs[order[p] as usize];
+pub(crate) fn leaf_data(sorted: &[Aabb], p: usize, k: &CollapseParams) -> SlotData {
+    let b = sorted[p];
     SlotData {
         bounds: b,
         cost: k.ci * area(&b),
@@ -142,16 +153,16 @@ impl RadixTree {
     /// An empty tree shell for `n ≥ 1` leaves (children unset, slots zero).
     pub(crate) fn with_leaves(n: usize, parents: bool) -> RadixTree {
         let inner = n.saturating_sub(1);
-        let mk_children = || (0..inner).map(|_| [AtomicU32::new(NONE), AtomicU32::new(NONE)]);
+        use crate::hugepage::from_fn;
         RadixTree {
             n,
-            children: mk_children().collect(),
+            children: from_fn(inner, |_| [AtomicU32::new(NONE), AtomicU32::new(NONE)]),
             parents: if parents {
-                (0..inner + n).map(|_| AtomicU32::new(NONE)).collect()
+                from_fn(inner + n, |_| AtomicU32::new(NONE))
             } else {
                 Vec::new()
             },
-            slots: (0..inner).map(|_| Slot::default()).collect(),
+            slots: from_fn(inner, |_| Slot::default()),
             root: 0,
         }
     }
@@ -171,15 +182,9 @@ impl RadixTree {
 
     /// Data of any node: a leaf from the primitive boxes, an internal node from its slot.
     #[inline]
-    pub(crate) fn data(
-        &self,
-        c: u32,
-        aabbs: &[Aabb],
-        order: &[u32],
-        k: &CollapseParams,
-    ) -> SlotData {
+    pub(crate) fn data(&self, c: u32, sorted: &[Aabb], k: &CollapseParams) -> SlotData {
         if self.is_leaf(c) {
-            leaf_data(aabbs, order, c as usize - (self.n - 1), k)
+            leaf_data(sorted, c as usize - (self.n - 1), k)
         } else {
             self.slots[c as usize].load()
         }
@@ -187,24 +192,25 @@ impl RadixTree {
 
     /// Finish internal node `i` from its two (finished) children and store the result.
     #[inline]
-    pub(crate) fn finish(
-        &self,
-        i: u32,
-        l: u32,
-        r: u32,
-        aabbs: &[Aabb],
-        order: &[u32],
-        k: &CollapseParams,
-    ) {
-        let a = self.data(l, aabbs, order, k);
-        let b = self.data(r, aabbs, order, k);
+    pub(crate) fn finish(&self, i: u32, l: u32, r: u32, sorted: &[Aabb], k: &CollapseParams) {
+        let a = self.data(l, sorted, k);
+        let b = self.data(r, sorted, k);
         self.slots[i as usize].store(&combine(&a, &b, k));
     }
 
-    /// Bounds of the whole tree.
-    pub fn root_bounds(&self, aabbs: &[Aabb], order: &[u32]) -> Aabb {
-        self.data(self.root, aabbs, order, &CollapseParams::NONE)
-            .bounds
+    /// Bounds of the whole tree (`sorted` as from [`gather_sorted`]).
+    pub fn root_bounds(&self, sorted: &[Aabb]) -> Aabb {
+        self.data(self.root, sorted, &CollapseParams::NONE).bounds
+    }
+
+    /// Output-subtree size of node id `c` (1 for a leaf or a collapsed node).
+    #[inline]
+    pub fn out_of(&self, c: u32) -> u32 {
+        if self.is_leaf(c) {
+            1
+        } else {
+            self.slots[c as usize].out.load(Ordering::Relaxed)
+        }
     }
 
     /// Headline SAH of the uncollapsed tree (`Ct = Ci = 1`, one primitive per leaf, root counted
@@ -261,7 +267,8 @@ pub(crate) fn combine(a: &SlotData, b: &SlotData, k: &CollapseParams) -> SlotDat
 /// Parallel bottom-up pass over a tree with parent links (Karras): one walk per leaf, stopping
 /// at the first arrival on each internal node; the second arrival finishes the node. Each
 /// arrival counter is a byte; the `AcqRel` increment publishes the child's slot to the finisher.
-pub fn refit(tree: &RadixTree, aabbs: &[Aabb], order: &[u32], k: &CollapseParams) {
+/// `sorted` holds the primitive boxes in sorted order ([`gather_sorted`]).
+pub fn refit(tree: &RadixTree, sorted: &[Aabb], k: &CollapseParams) {
     let n = tree.n;
     if n < 2 {
         return;
@@ -281,7 +288,7 @@ pub fn refit(tree: &RadixTree, aabbs: &[Aabb], order: &[u32], k: &CollapseParams
                     break;
                 }
                 let (l, r) = tree.children_of(parent);
-                tree.finish(parent, l, r, aabbs, order, k);
+                tree.finish(parent, l, r, sorted, k);
                 cur = parent;
             }
         });

@@ -195,15 +195,15 @@ impl Bvh {
                         slots: prims,
                     });
                 }
-                for s in first as usize..end as usize {
-                    if std::mem::replace(&mut slot_used[s], true) {
+                let range = first as usize..end as usize;
+                for (used, &p) in slot_used[range.clone()]
+                    .iter_mut()
+                    .zip(&self.prim_indices[range])
+                {
+                    if std::mem::replace(used, true) {
                         // Two leaves share a slot, so that slot's primitive is held twice.
-                        return Err(ValidateError::DuplicatePrim {
-                            prim: self.prim_indices[s],
-                            node: i,
-                        });
+                        return Err(ValidateError::DuplicatePrim { prim: p, node: i });
                     }
-                    let p = self.prim_indices[s];
                     let Some(b) = aabbs.get(p as usize) else {
                         return Err(ValidateError::BadPrim {
                             node: i,
