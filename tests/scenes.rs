@@ -577,3 +577,99 @@ fn shared_scenes_resolve_by_name() {
         println!("skipped: no shared scene of at most 1M triangles found");
     }
 }
+
+#[test]
+fn hard_cases_have_their_shape() {
+    let n = 3000;
+    for name in builtin::HARD_NAMES {
+        let a = gen(name, Some(n), 4);
+        let b = gen(name, Some(n), 4);
+        assert!(bit_eq(&a, &b), "{name} not deterministic");
+        assert_eq!(a.name, format!("builtin:{name}"));
+        if name != "hard-nonfinite" {
+            assert_eq!(a.triangle_count(), n, "{name}");
+            assert_eq!(a.dropped_nonfinite, 0, "{name}");
+        }
+        assert!(a
+            .indices
+            .iter()
+            .flatten()
+            .all(|&i| (i as usize) < a.vertices.len()));
+        for i in 0..a.triangle_count() {
+            assert!(a.triangle(i).iter().all(|v| v.is_finite()), "{name} {i}");
+        }
+        let v = &a.vertices;
+        let bounds = a.bounds();
+        let e = bounds.max - bounds.min;
+        match name {
+            "hard-point" => assert!(v.iter().all(|&p| p == v[0])),
+            "hard-plane-x" => assert!(v.iter().all(|p| p.x == 5.0) && e.y > 50.0),
+            "hard-plane-y" => assert!(v.iter().all(|p| p.y == 5.0) && e.z > 50.0),
+            "hard-plane-z" => assert!(v.iter().all(|p| p.z == 5.0) && e.x > 50.0),
+            "hard-far" => {
+                assert!(bounds.min.min_element() >= 1e7 - 1.0 && e.max_element() <= 101.0)
+            }
+            "hard-huge" => {
+                assert!(e.x > f32::MAX / 2.0 && e.is_finite());
+                // The f32 area overflows; the f64 one does not.
+                let big = a.aabbs().iter().map(|b| b.area_f64()).fold(0.0, f64::max);
+                assert!(big.is_finite() && big > f32::MAX as f64);
+            }
+            "hard-tiny" => assert!(v.iter().all(|p| p
+                .to_array()
+                .iter()
+                .all(|&c| (f32::MIN_POSITIVE..16.0 * f32::MIN_POSITIVE).contains(&c)))),
+            "hard-subnormal" => {
+                assert!(v.iter().all(|p| p
+                    .to_array()
+                    .iter()
+                    .all(|&c| (0.0..f32::MIN_POSITIVE).contains(&c))));
+                assert!(e.min_element() > 0.0 && e.max_element() < f32::MIN_POSITIVE);
+            }
+            "hard-needles" => {
+                let zero = (0..n)
+                    .filter(|&i| {
+                        let [p, q, r] = a.triangle(i);
+                        (q - p).cross(r - p) == Vec3::ZERO
+                    })
+                    .count();
+                assert!(zero >= n / 3, "{zero}");
+            }
+            "hard-one-big" => {
+                let boxes = a.aabbs();
+                assert!(boxes.iter().all(|b| boxes[0].contains(b)));
+                assert!(boxes[1..].iter().all(|b| diag(b) < 2e-3));
+                assert_eq!(
+                    scene::load("builtin:hard-one-big")
+                        .unwrap()
+                        .triangle_count(),
+                    1_000_001
+                );
+            }
+            "hard-same-cell" => {
+                let inner = a.aabbs()[2..].iter().fold(Aabb::EMPTY, |x, b| x.union(b));
+                let ie = inner.max - inner.min;
+                assert!(ie.max_element() <= 1.0 / (1u32 << 22) as f32, "{ie:?}");
+                assert!(e.min_element() >= 1.0);
+            }
+            "hard-elongated" => assert!(e.x / e.y.max(e.z) >= 1e5 * 0.98, "{e:?}"),
+            "hard-nonfinite" => {
+                assert!(a.dropped_nonfinite > 0);
+                assert_eq!(a.triangle_count() + a.dropped_nonfinite, n);
+                assert!(a.vertices.iter().any(|p| !p.is_finite()));
+            }
+            "hard-duplicates" => assert!((0..n).all(|i| a.triangle(i) == a.triangle(0))),
+            _ => unreachable!("{name}"),
+        }
+        // The AVX2 boxes equal the scalar boxes here too.
+        let mut scalar = vec![Aabb::EMPTY; a.triangle_count()];
+        triangle_aabbs_with(AabbPath::Scalar, &a.vertices, &a.indices, &mut scalar);
+        assert_eq!(box_bits(&a.aabbs()), box_bits(&scalar), "{name}");
+    }
+    assert_eq!(
+        scene::load("builtin:hard-same-cell")
+            .unwrap()
+            .triangle_count(),
+        (1 << 21) + 3
+    );
+}

@@ -15,6 +15,28 @@ pub const DEFAULT_SEED: u64 = 0x5EED_E3C0_2017;
 /// The names accepted after `builtin:`.
 pub const NAMES: [&str; 6] = ["uniform", "stadium", "city", "hair", "mixed", "sphere"];
 
+/// The hard-case catalogue, also `builtin:` scenes (see [`generate`] for each one's shape).
+pub const HARD_NAMES: [&str; 14] = [
+    "hard-point",
+    "hard-plane-x",
+    "hard-plane-y",
+    "hard-plane-z",
+    "hard-far",
+    "hard-huge",
+    "hard-tiny",
+    "hard-subnormal",
+    "hard-needles",
+    "hard-one-big",
+    "hard-same-cell",
+    "hard-elongated",
+    "hard-nonfinite",
+    "hard-duplicates",
+];
+
+/// Default triangle count of the hard cases, except `hard-one-big` (10^6 tiny + 1) and
+/// `hard-same-cell` (2^21 + 1 in one cell + 2 corners).
+pub const HARD_DEFAULT_PRIMS: usize = 100_000;
+
 /// Default triangle count of every generator except `sphere` (which defaults to level 7,
 /// 327,680 triangles).
 pub const DEFAULT_PRIMS: usize = 500_000;
@@ -32,10 +54,35 @@ pub const CITY_MAX_HEIGHT: f32 = 200.0;
 /// - `sphere`: `20·4^L` triangles for the subdivision level `L` in 0..=10 whose count is
 ///   nearest to `prims` (ties to the smaller level); the seed is not used.
 ///
+/// The hard cases (exactly `prims` triangles unless noted; the default is
+/// [`HARD_DEFAULT_PRIMS`]):
+/// - `hard-point`: every vertex at one point (1.5, -2.25, 3);
+/// - `hard-plane-x` / `-y` / `-z`: `uniform`'s triangles flattened onto the plane x (y, z) = 5;
+/// - `hard-far`: 1 mm triangles around centres in a 100-unit cube 10^7 units from the origin
+///   (f32 keeps about 1 unit there: most become zero-area);
+/// - `hard-huge`: vertices anywhere in ±f32::MAX/2 (finite, but f32 areas overflow);
+/// - `hard-tiny`: coordinates in [1, 16) × the smallest normal f32;
+/// - `hard-subnormal`: coordinates below the smallest normal (subnormal extents);
+/// - `hard-needles`: a third zero-area (repeated or collinear vertices), two thirds needles
+///   (length 1, width 1e-7) in the unit cube;
+/// - `hard-one-big`: one triangle covering the whole scene among `prims - 1` tiny ones
+///   (default 10^6 + 1);
+/// - `hard-same-cell`: `prims - 2` triangles inside one cell of 2^-23 of a unit scene (finer than
+///   any 63- or 64-bit code resolves) plus 2 small triangles at the corners that span the scene
+///   (default 2^21 + 3);
+/// - `hard-elongated`: `uniform` stretched to 10^5 × 1 × 1;
+/// - `hard-nonfinite`: a `uniform` mesh in which about 1% of the vertices are NaN or ±inf; like
+///   a loaded file, those triangles are dropped and counted in [`Scene::dropped_nonfinite`]
+///   (the count is of the remaining triangles);
+/// - `hard-duplicates`: every triangle identical (0,0,0), (1,0,0), (0,1,0).
+///
 /// `prims = Some(0)` is an error.
 pub fn generate(name: &str, opts: &SceneOptions) -> Result<Scene, SceneError> {
     if opts.prims == Some(0) {
         return Err(SceneError::ZeroPrims(name.to_string()));
+    }
+    if let Some(kind) = name.strip_prefix("hard-") {
+        return hard(kind, name, opts);
     }
     let n = opts.prims.unwrap_or(DEFAULT_PRIMS);
     // Each scene draws from its own stream so that scenes with one seed are unrelated.
@@ -59,6 +106,149 @@ pub fn generate(name: &str, opts: &SceneOptions) -> Result<Scene, SceneError> {
             path: PathBuf::from(format!("builtin:{name}")),
         });
     }
+    Ok(scene)
+}
+
+/// The hard-case generators (see [`generate`]).
+fn hard(kind: &str, name: &str, opts: &SceneOptions) -> Result<Scene, SceneError> {
+    let default = match kind {
+        "one-big" => 1_000_001,
+        "same-cell" => (1 << 21) + 3,
+        _ => HARD_DEFAULT_PRIMS,
+    };
+    let n = opts.prims.unwrap_or(default);
+    let mut rng = Pcg32::new(opts.seed, 100 + kind.len() as u64);
+    let mut s = Soup::with_capacity(n);
+    let mut dropped = 0;
+    match kind {
+        "point" => {
+            let p = Vec3::new(1.5, -2.25, 3.0);
+            for _ in 0..n {
+                s.tri(p, p, p);
+            }
+        }
+        "plane-x" | "plane-y" | "plane-z" => {
+            let axis = (kind.as_bytes()[6] - b'x') as usize;
+            uniform(&mut s, n, &mut rng);
+            for v in &mut s.vertices {
+                v[axis] = 5.0;
+            }
+        }
+        "far" => {
+            let base = Vec3::splat(1.0e7);
+            for _ in 0..n {
+                let c = base + rng.vec3(Vec3::ZERO, Vec3::splat(100.0));
+                small_tri(&mut s, &mut rng, c, 1e-3);
+            }
+        }
+        "huge" => {
+            let h = Vec3::splat(f32::MAX / 2.0);
+            for _ in 0..n {
+                s.tri(rng.vec3(-h, h), rng.vec3(-h, h), rng.vec3(-h, h));
+            }
+        }
+        "tiny" | "subnormal" => {
+            let (lo, hi) = if kind == "tiny" {
+                (f32::MIN_POSITIVE, 16.0 * f32::MIN_POSITIVE)
+            } else {
+                (0.0, f32::MIN_POSITIVE)
+            };
+            // The largest value below `hi`: coordinates stay in [lo, hi).
+            let top = Vec3::splat(f32::from_bits(hi.to_bits() - 1));
+            let (lo, hi) = (Vec3::splat(lo), Vec3::splat(hi));
+            for _ in 0..n {
+                // Drawn in [0, 1) and scaled: exact for normals, rounded into subnormals.
+                let mut p = || {
+                    let u = rng.vec3(Vec3::ZERO, Vec3::ONE);
+                    (lo + u * (hi - lo)).min(top)
+                };
+                let (a, b, c) = (p(), p(), p());
+                s.tri(a, b, c);
+            }
+        }
+        "needles" => {
+            for i in 0..n {
+                let a = rng.vec3(Vec3::ZERO, Vec3::ONE);
+                match i % 3 {
+                    0 if i % 2 == 0 => s.tri(a, a, rng.vec3(Vec3::ZERO, Vec3::ONE)),
+                    0 => {
+                        // Collinear along an axis: exactly zero area in f32 too.
+                        let mut d = Vec3::ZERO;
+                        d[(rng.next_u32() % 3) as usize] = rng.range(0.01, 0.1);
+                        s.tri(a, a + d, a + 2.0 * d);
+                    }
+                    _ => {
+                        let d = rng.signed3().normalize_or(Vec3::X);
+                        let w = d.any_orthonormal_vector() * 1e-7;
+                        s.tri(a, a + d, a + w);
+                    }
+                }
+            }
+        }
+        "one-big" => {
+            let side = 100.0f32;
+            s.tri(
+                Vec3::new(-side, -side, -side),
+                Vec3::new(3.0 * side, -side, side),
+                Vec3::new(-side, 3.0 * side, 3.0 * side),
+            );
+            for _ in 1..n {
+                let c = rng.vec3(Vec3::ZERO, Vec3::splat(side));
+                small_tri(&mut s, &mut rng, c, 1e-3);
+            }
+        }
+        "same-cell" => {
+            s.tri(Vec3::ZERO, Vec3::splat(1e-3), Vec3::new(1e-3, 0.0, 0.0));
+            s.tri(
+                Vec3::ONE,
+                Vec3::splat(1.0 - 1e-3),
+                Vec3::new(1.0, 1.0, 1.0 - 1e-3),
+            );
+            let cell = Vec3::splat(0.5);
+            let size = Vec3::splat(1.0 / (1u32 << 23) as f32);
+            for _ in 2..n.max(2) {
+                let a = rng.vec3(cell, cell + size);
+                let b = rng.vec3(cell, cell + size);
+                let c = rng.vec3(cell, cell + size);
+                s.tri(a, b, c);
+            }
+        }
+        "elongated" => {
+            uniform(&mut s, n, &mut rng);
+            for v in &mut s.vertices {
+                *v = Vec3::new(v.x * 1e3, v.y * 1e-2, v.z * 1e-2);
+            }
+        }
+        "nonfinite" => {
+            uniform(&mut s, n, &mut rng);
+            let bad = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY];
+            for v in &mut s.vertices {
+                if rng.next_u32().is_multiple_of(100) {
+                    let axis = (rng.next_u32() % 3) as usize;
+                    v[axis] = bad[(rng.next_u32() % 3) as usize];
+                }
+            }
+            let verts = &s.vertices;
+            let before = s.indices.len();
+            s.indices
+                .retain(|t| t.iter().all(|&i| verts[i as usize].is_finite()));
+            dropped = before - s.indices.len();
+        }
+        "duplicates" => {
+            for _ in 0..n {
+                s.tri(Vec3::ZERO, Vec3::X, Vec3::Y);
+            }
+        }
+        _ => return Err(SceneError::UnknownBuiltin(name.to_string())),
+    }
+    if s.indices.is_empty() {
+        return Err(SceneError::AllNonFinite {
+            path: PathBuf::from(format!("builtin:{name}")),
+            dropped,
+        });
+    }
+    let mut scene = s.into_scene(format!("builtin:{name}"));
+    scene.dropped_nonfinite = dropped;
     Ok(scene)
 }
 

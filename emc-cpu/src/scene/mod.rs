@@ -96,7 +96,11 @@ pub enum SceneError {
         count: usize,
     },
     /// `builtin:NAME` with a name that is not a built-in scene.
-    #[error("unknown built-in scene `{0}` (known: {known})", known = builtin::NAMES.join(", "))]
+    #[error(
+        "unknown built-in scene `{0}` (known: {known}, {hard})",
+        known = builtin::NAMES.join(", "),
+        hard = builtin::HARD_NAMES.join(", ")
+    )]
     UnknownBuiltin(String),
     /// A bare scene name that is not a file and not found in the shared scenes directory.
     #[error("scene `{name}` is neither a file nor a shared scene ({where_})")]
