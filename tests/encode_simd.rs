@@ -2,7 +2,7 @@
 //! backend and both quantise paths, on the hard-case scenes, random scenes (proptest) and boxes
 //! whose squared diagonal sits on and around every size threshold. Also the parallel encoder.
 
-use emc_core::{Aabb, Backend, Encoder, Frame, Layout, QuantizePath};
+use emc_core::{Aabb, Backend, Encoder, Frame, Layout, QuantizePath, SizePath};
 use emc_tests::{all_layouts, bx, frame_of, hard_scenes, layout_of, scene};
 use glam::Vec3;
 use proptest::prelude::*;
@@ -17,6 +17,12 @@ fn variants(layout: &Layout, frame: &Frame) -> Vec<Encoder> {
         };
         for q in [QuantizePath::Scalar, QuantizePath::Avx2] {
             if let Ok(e) = enc.clone().with_quantize(q) {
+                // Both size paths of the AVX2 step (each is exact; dispatch picks one per CPU).
+                for s in [SizePath::Thresholds, SizePath::Formula] {
+                    if let Ok(es) = e.clone().with_size_path(s) {
+                        out.push(es);
+                    }
+                }
                 out.push(e);
             }
         }
@@ -73,6 +79,10 @@ fn avx2_path_is_reported_where_available() {
     eprintln!("{p}; expand reason: {}", enc.reason());
     if emc_core::cpu::detect().avx2 {
         assert_eq!(p.quantize, QuantizePath::Avx2);
+        let t = enc.clone().with_size_path(SizePath::Thresholds).unwrap();
+        assert_eq!(t.pipeline().size, Some(SizePath::Thresholds));
+        let f = enc.clone().with_size_path(SizePath::Formula).unwrap();
+        assert_eq!(f.pipeline().size, Some(SizePath::Formula));
     } else {
         eprintln!("no AVX2 here: the SIMD comparisons below only cover the scalar path");
         assert_eq!(p.quantize, QuantizePath::Scalar);

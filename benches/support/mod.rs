@@ -1,1 +1,25 @@
-//! Shared helpers of the emc benchmarks.
+//! Shared helpers of the emc benchmarks: the primitive count (`EMC_BENCH_N`) and the
+//! deterministic box sets the encoder benches run on.
+
+use emc_core::Aabb;
+use emc_cpu::scene::{load_with, SceneOptions};
+
+/// Primitives per benchmark: `EMC_BENCH_N` when set (quick runs), else 16M (16,777,216).
+pub fn bench_n() -> usize {
+    std::env::var("EMC_BENCH_N")
+        .ok()
+        .and_then(|s| s.parse().ok())
+        .filter(|&n| n > 0)
+        .unwrap_or(1 << 24)
+}
+
+/// The boxes of `builtin:uniform` with `n` triangles (deterministic, default seed).
+pub fn uniform_boxes(n: usize) -> Vec<Aabb> {
+    let opts = SceneOptions {
+        prims: Some(n),
+        ..SceneOptions::default()
+    };
+    load_with("builtin:uniform", &opts)
+        .expect("the built-in uniform scene generates")
+        .aabbs()
+}

@@ -10,7 +10,7 @@ use crate::expand::{Backend, Expander};
 use crate::frame::Frame;
 use crate::layout::{Layout, LayoutSpec};
 use crate::quantize::Quantizer;
-use crate::simd::{ExpandPath, Pipeline, QuantizePath};
+use crate::simd::{ExpandPath, Pipeline, QuantizePath, SizePath};
 
 /// How an encoder's backend was chosen.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -94,6 +94,7 @@ impl Encoder {
                 quantize: QuantizePath::Scalar,
                 expand: ExpandPath::Scalar(expander.backend()),
                 quantize_reason: "no AVX2 on this CPU",
+                size: None,
             },
             quant,
             layout,
@@ -127,19 +128,23 @@ impl Encoder {
                     quantize: QuantizePath::Scalar,
                     expand: ExpandPath::Scalar(self.expander.backend()),
                     quantize_reason: why,
+                    size: None,
                 };
                 Ok(())
             }
             #[cfg(target_arch = "x86_64")]
             QuantizePath::Avx2 => {
-                let kernel = if cpu::detect().avx2 {
-                    crate::simd::avx2::Kernel::new(&self.quant)
+                let info = cpu::detect();
+                let kernel = if info.avx2 {
+                    crate::simd::avx2::Kernel::new(&self.quant, SizePath::preferred(&info))
                 } else {
                     None
                 };
                 let kernel = kernel.ok_or(Error::QuantizeUnavailable(path))?;
+                let size = kernel.size_path();
                 self.kernel = Some(kernel);
                 self.pipeline = Pipeline {
+                    size,
                     quantize: QuantizePath::Avx2,
                     expand: match self.expander.backend() {
                         Backend::Table => ExpandPath::TableLanes,
@@ -161,6 +166,22 @@ impl Encoder {
     pub fn with_quantize(mut self, path: QuantizePath) -> Result<Encoder, Error> {
         self.set_quantize(path, "forced by the caller")?;
         Ok(self)
+    }
+
+    /// The same encoder with a forced size path for the AVX2 quantise step (for tests and
+    /// benchmarks); an error when the AVX2 path is not in use. Asking for thresholds on a
+    /// size channel wider than 8 bits (or none) keeps the formula, as dispatch would.
+    pub fn with_size_path(mut self, size: SizePath) -> Result<Encoder, Error> {
+        #[cfg(target_arch = "x86_64")]
+        if self.kernel.is_some() {
+            let k = crate::simd::avx2::Kernel::new(&self.quant, size)
+                .ok_or(Error::QuantizeUnavailable(QuantizePath::Avx2))?;
+            self.pipeline.size = k.size_path();
+            self.kernel = Some(k);
+            return Ok(self);
+        }
+        let _ = size;
+        Err(Error::QuantizeUnavailable(QuantizePath::Avx2))
     }
 
     /// What `encode_batch` runs (quantise and expand paths) and why, decided at construction.

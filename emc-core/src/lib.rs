@@ -49,6 +49,6 @@ pub use expand::{Backend, Expander};
 pub use frame::{Frame, SceneBounds};
 pub use layout::{Channel, Layout, LayoutSpec, Normalization, Pattern, SizeTransform};
 pub use quantize::Quantizer;
-pub use simd::{ExpandPath, Pipeline, QuantizePath};
+pub use simd::{ExpandPath, Pipeline, QuantizePath, SizePath};
 
 pub use glam;

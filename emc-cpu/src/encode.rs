@@ -1,8 +1,12 @@
 //! Parallel batch encoding: splits a slice of primitive boxes into chunks that rayon encodes
 //! with the encoder's dispatched pipeline. Codes depend only on each box and the encoder, so
-//! the result is bit-identical to one thread (and to `Encoder::encode` on each box).
+//! the result is bit-identical to one thread (and to `Encoder::encode` on each box). Also the
+//! measurement kernels shared by `emc layout` and the benches (encode-only loop, streaming
+//! baseline, thread CPU clock).
 
-use emc_core::{Aabb, Encoder, Error};
+use std::time::Duration;
+
+use emc_core::{Aabb, Encoder, Error, Expander};
 use rayon::prelude::*;
 
 /// Boxes per parallel task: large enough that task overhead vanishes (≈ 0.1–0.3 ms of work),
@@ -31,4 +35,64 @@ pub fn encode_parallel_u32(enc: &Encoder, boxes: &[Aabb], out: &mut [u32]) -> Re
     out.par_chunks_mut(CHUNK)
         .zip(boxes.par_chunks(CHUNK))
         .try_for_each(|(o, b)| enc.encode_batch_u32(b, o))
+}
+
+/// Expand pre-quantised channel values with one backend, in a loop monomorphic in the backend
+/// (the "encode-only" kernel of the benchmarks).
+pub fn expand_slice(exp: &Expander, q: &[[u64; 4]], out: &mut [u64]) -> Result<(), Error> {
+    if q.len() != out.len() {
+        return Err(Error::LengthMismatch(q.len(), out.len()));
+    }
+    match exp {
+        Expander::Reference(e) => out.iter_mut().zip(q).for_each(|(o, v)| *o = e.expand(*v)),
+        Expander::Magic(e) => out.iter_mut().zip(q).for_each(|(o, v)| *o = e.expand(*v)),
+        Expander::Table(e) => out.iter_mut().zip(q).for_each(|(o, v)| *o = e.expand(*v)),
+        #[cfg(target_arch = "x86_64")]
+        Expander::Pdep(e) => e.expand_slice(q, out),
+    }
+    Ok(())
+}
+
+/// The streaming baseline of the pipeline: reads every byte of every box (24 B) and writes one
+/// `u64` (8 B) per box, with one xor per word: the memory ceiling an encoder is compared to.
+pub fn stream_baseline(boxes: &[Aabb], out: &mut [u64]) -> Result<(), Error> {
+    if boxes.len() != out.len() {
+        return Err(Error::LengthMismatch(boxes.len(), out.len()));
+    }
+    for (o, b) in out.iter_mut().zip(boxes) {
+        let lo = b.min.x.to_bits() ^ b.min.y.to_bits() ^ b.min.z.to_bits();
+        let hi = b.max.x.to_bits() ^ b.max.y.to_bits() ^ b.max.z.to_bits();
+        *o = (hi as u64) << 32 | lo as u64;
+    }
+    Ok(())
+}
+
+/// CPU time consumed by the calling thread (`CLOCK_THREAD_CPUTIME_ID`): immune to other
+/// processes on a shared machine, unlike wall-clock time.
+pub fn thread_cpu_time() -> Duration {
+    let mut ts = libc::timespec {
+        tv_sec: 0,
+        tv_nsec: 0,
+    };
+    // SAFETY: `ts` is a valid, writable timespec; the clock id is a constant Linux supports.
+    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+    if rc != 0 {
+        return Duration::ZERO;
+    }
+    Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
+}
+
+/// Median of a non-empty list (the mean of the middle two for an even count); NaN when empty.
+pub fn median(v: &[f64]) -> f64 {
+    if v.is_empty() {
+        return f64::NAN;
+    }
+    let mut s = v.to_vec();
+    s.sort_by(f64::total_cmp);
+    let n = s.len();
+    if n % 2 == 1 {
+        s[n / 2]
+    } else {
+        0.5 * (s[n / 2 - 1] + s[n / 2])
+    }
 }

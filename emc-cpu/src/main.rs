@@ -13,20 +13,24 @@ struct Cli {
 enum Verb {
     /// Build a BVH over a scene and print per-phase timings, tree shape and SAH.
     Build(emc_cpu::cli::build::BuildArgs),
-    /// Trace the benchmark protocol (primary, AO, bounce rays) on a scene: Mrays/s, rays per
-    /// thread-CPU-second, node and triangle tests per ray; optionally write a shaded PNG.
-    Render(emc_cpu::cli::render::RenderArgs),
+    /// Print each layout of a scene, every backend's throughput against a streaming baseline,
+    /// and which backend dispatch picks and why.
+    Layout(emc_cpu::cli::layout::LayoutArgs),
     /// Simulate the fixed-function EMC unit on a scene: bit-exactness against emc-core,
     /// cycle statistics, and area/latency/energy over Morton with codes/cycle per bandwidth.
     Hwsim(emc_cpu::cli::hwsim::HwsimArgs),
+    /// Trace the benchmark protocol (primary, AO, bounce rays) on a scene: Mrays/s, rays per
+    /// thread-CPU-second, node and triangle tests per ray; optionally write a shaded PNG.
+    Render(emc_cpu::cli::render::RenderArgs),
 }
 
 fn main() {
     let cli = Cli::parse();
     let result: anyhow::Result<()> = match cli.verb {
         Verb::Build(a) => emc_cpu::cli::build::run(&a),
-        Verb::Render(a) => emc_cpu::cli::render::run(&a),
+        Verb::Layout(a) => emc_cpu::cli::layout::run(&a),
         Verb::Hwsim(a) => emc_cpu::cli::hwsim::run(&a),
+        Verb::Render(a) => emc_cpu::cli::render::run(&a),
     };
     if let Err(e) = result {
         eprintln!("emc: {e:#}");

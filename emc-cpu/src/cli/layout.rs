@@ -1,0 +1,289 @@
+//! `emc layout`: build a scene's frame and print, per layout, the seed-style line, each
+//! backend's encode-only and full-pipeline throughput in thread CPU time, the ratio to a
+//! streaming baseline measured in the same rounds, and which backend dispatch picked and why.
+//!
+//! `--ratios` turns it into the ratio measurement tool: only the baseline and the dispatched
+//! pipelines, at least 9 interleaved rounds, the median of the per-round ratios.
+
+use std::fmt::Write as _;
+use std::time::Instant;
+
+use anyhow::{bail, Context};
+use emc_core::{Aabb, Backend, Encoder, Frame, LayoutSpec, Normalization, QuantizePath};
+
+use crate::encode::{encode_parallel, expand_slice, median, stream_baseline, thread_cpu_time};
+use crate::scene::{load_with, SceneOptions};
+
+/// Triangles of a built-in scene when `--prims` is not given.
+pub const DEFAULT_PRIMS: usize = 1 << 20;
+
+/// Arguments of `emc layout`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct LayoutArgs {
+    /// A scene file (`.obj`, `.obj.zst`), a shared scene name, or `builtin:NAME`.
+    #[arg(default_value = "builtin:uniform")]
+    pub scene: String,
+    /// Triangle count of a built-in scene.
+    #[arg(long, default_value_t = DEFAULT_PRIMS)]
+    pub prims: usize,
+    /// Layouts to report (repeatable); default: morton30, morton63, emc64-sort, emc64-var,
+    /// emc32-var, emc64-var-nosize. Also custom:PATTERN[:linear].
+    #[arg(long = "layout")]
+    pub layouts: Vec<String>,
+    /// Threads for loading the scene and for an extra parallel-encode row (wall clock); the
+    /// per-backend figures are always one thread.
+    #[arg(long, default_value_t = 1)]
+    pub threads: usize,
+    /// Interleaved timing rounds (default 5, or 9 with `--ratios`).
+    #[arg(long)]
+    pub rounds: Option<usize>,
+    /// Measure only the streaming baseline and the dispatched pipelines (forced-scalar
+    /// quantise for comparison), and report the median of per-round ratios.
+    #[arg(long)]
+    pub ratios: bool,
+}
+
+/// One timed kernel of a layout.
+enum Kind<'a> {
+    Baseline,
+    Expand(&'a Encoder),
+    Pipeline(&'a Encoder),
+    PipelineScalar(&'a Encoder),
+}
+
+struct Timed<'a> {
+    kind: Kind<'a>,
+    secs: Vec<f64>,
+    ratios: Vec<f64>,
+}
+
+impl Timed<'_> {
+    fn run(&self, boxes: &[Aabb], q: &[[u64; 4]], out: &mut [u64]) -> anyhow::Result<()> {
+        match self.kind {
+            Kind::Baseline => stream_baseline(boxes, out)?,
+            Kind::Expand(e) => expand_slice(e.expander(), q, out)?,
+            Kind::Pipeline(e) => e.encode_batch(boxes, out)?,
+            Kind::PipelineScalar(e) => e.encode_batch_scalar(boxes, out)?,
+        }
+        Ok(())
+    }
+
+    /// "ns/code  Mcodes/s" from the median time.
+    fn rate(&self, n: usize) -> String {
+        let s = median(&self.secs);
+        format!(
+            "{:7.2} ns {:7.1} M/s",
+            s * 1e9 / n as f64,
+            n as f64 / s / 1e6
+        )
+    }
+
+    fn ratio(&self) -> f64 {
+        median(&self.ratios)
+    }
+}
+
+/// Run `emc layout`.
+pub fn run(args: &LayoutArgs) -> anyhow::Result<()> {
+    if args.threads == 0 {
+        bail!("--threads must be at least 1");
+    }
+    if args.prims == 0 {
+        bail!("--prims must be at least 1");
+    }
+    let rounds = args.rounds.unwrap_or(if args.ratios { 9 } else { 5 });
+    if rounds == 0 {
+        bail!("--rounds must be at least 1");
+    }
+    let specs: Vec<LayoutSpec> = if args.layouts.is_empty() {
+        LayoutSpec::STANDARD.to_vec()
+    } else {
+        args.layouts
+            .iter()
+            .map(|l| l.parse().with_context(|| format!("--layout {l}")))
+            .collect::<anyhow::Result<_>>()?
+    };
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads)
+        .build()
+        .context("cannot start the thread pool")?;
+    pool.install(|| report(args, &specs, rounds))
+}
+
+fn report(args: &LayoutArgs, specs: &[LayoutSpec], rounds: usize) -> anyhow::Result<()> {
+    let opts = SceneOptions {
+        prims: Some(args.prims),
+        ..SceneOptions::default()
+    };
+    let scene = load_with(&args.scene, &opts).with_context(|| format!("scene {}", args.scene))?;
+    let boxes = scene.aabbs();
+    let bounds = scene
+        .scene_bounds(&boxes)
+        .with_context(|| format!("scene {}", scene.name))?;
+    let frame = Frame::from_bounds(bounds, Normalization::CentroidBox)?;
+    let n = boxes.len();
+    let cpu = emc_core::cpu::detect();
+    println!(
+        "scene {}: {} primitives; extent {:.4e} x {:.4e} x {:.4e}, D = {:.4e}",
+        scene.name,
+        n,
+        frame.extent()[0],
+        frame.extent()[1],
+        frame.extent()[2],
+        frame.diagonal()
+    );
+    println!(
+        "cpu: {} family {:#x} model {:#x}, bmi2 {}, avx2 {}; {}",
+        cpu.vendor_str(),
+        cpu.family,
+        cpu.model,
+        cpu.bmi2,
+        cpu.avx2,
+        cpu.pdep_reason()
+    );
+    println!(
+        "timing: thread CPU time, median of {rounds} interleaved rounds, one thread; \
+         ratio = median of per-round (kernel / baseline); baseline streams 24 B in + 8 B out \
+         per primitive"
+    );
+    let mut out = vec![0u64; n];
+    for spec in specs {
+        let layout = spec.resolve(frame.extent());
+        let dispatched = Encoder::for_layout(layout, &frame);
+        println!();
+        println!("{spec}  {layout}");
+        println!(
+            "  dispatch: {} ({}); {}",
+            dispatched.backend(),
+            dispatched.reason(),
+            dispatched.pipeline()
+        );
+        let mut reference = vec![0u64; n];
+        dispatched.encode_batch_scalar(&boxes, &mut reference)?;
+        let q: Vec<[u64; 4]> = if args.ratios {
+            Vec::new()
+        } else {
+            boxes
+                .iter()
+                .map(|b| dispatched.quantizer().quantize(b))
+                .collect()
+        };
+        // Every backend that can serve the layout here, and why the others cannot.
+        let mut encoders: Vec<(Backend, Encoder)> = Vec::new();
+        let mut unavailable: Vec<String> = Vec::new();
+        if !args.ratios {
+            for b in Backend::ALL {
+                match Encoder::with_backend(layout, &frame, b) {
+                    Ok(e) => encoders.push((b, e)),
+                    Err(e) => unavailable.push(format!("{b}: n/a ({e})")),
+                }
+            }
+        }
+        let mut timed = vec![Timed {
+            kind: Kind::Baseline,
+            secs: Vec::new(),
+            ratios: Vec::new(),
+        }];
+        let mut add = |kind| {
+            timed.push(Timed {
+                kind,
+                secs: Vec::new(),
+                ratios: Vec::new(),
+            })
+        };
+        add(Kind::Pipeline(&dispatched));
+        add(Kind::PipelineScalar(&dispatched));
+        for (_, e) in &encoders {
+            add(Kind::Expand(e));
+            add(Kind::Pipeline(e));
+            add(Kind::PipelineScalar(e));
+        }
+        // Warm-up doubles as the correctness check: every pipeline equals the scalar path.
+        for t in &timed {
+            t.run(&boxes, &q, &mut out)?;
+            if matches!(t.kind, Kind::Pipeline(_) | Kind::PipelineScalar(_)) && out != reference {
+                bail!("{spec}: a batch pipeline disagrees with the scalar encoder");
+            }
+        }
+        for _ in 0..rounds {
+            let mut base = f64::NAN;
+            for t in timed.iter_mut() {
+                let t0 = thread_cpu_time();
+                t.run(&boxes, &q, &mut out)?;
+                let s = (thread_cpu_time() - t0).as_secs_f64().max(1e-9);
+                if matches!(t.kind, Kind::Baseline) {
+                    base = s;
+                }
+                t.secs.push(s);
+                t.ratios.push(s / base);
+            }
+        }
+        println!("  baseline stream:              {}", timed[0].rate(n));
+        println!(
+            "  dispatched pipeline:          {}  {:5.2}x baseline",
+            timed[1].rate(n),
+            timed[1].ratio()
+        );
+        println!(
+            "  same, scalar quantize:        {}  {:5.2}x baseline",
+            timed[2].rate(n),
+            timed[2].ratio()
+        );
+        if args.ratios {
+            let r = &timed[1].ratios;
+            let lo = r.iter().copied().fold(f64::INFINITY, f64::min);
+            let hi = r.iter().copied().fold(0.0, f64::max);
+            println!(
+                "  per-round ratios of the dispatched pipeline: min {lo:.2} median {:.2} max \
+                 {hi:.2} over {} rounds",
+                timed[1].ratio(),
+                r.len()
+            );
+        } else {
+            println!(
+                "  {:<10} {:>22} {:>22} {:>8} {:>22} {:>8}",
+                "backend", "encode only", "pipeline", "ratio", "pipeline, scalar q", "ratio"
+            );
+            for (i, (b, e)) in encoders.iter().enumerate() {
+                let k = 3 + 3 * i;
+                let mut line = String::new();
+                write!(
+                    line,
+                    "  {:<10} {:>22} {:>22} {:>7.2}x {:>22} {:>7.2}x",
+                    b.name(),
+                    timed[k].rate(n),
+                    timed[k + 1].rate(n),
+                    timed[k + 1].ratio(),
+                    timed[k + 2].rate(n),
+                    timed[k + 2].ratio()
+                )?;
+                if e.pipeline().quantize == QuantizePath::Avx2 {
+                    write!(line, "  [{}]", e.pipeline().expand)?;
+                }
+                println!("{line}");
+            }
+            for u in &unavailable {
+                println!("  {u}");
+            }
+        }
+        if args.threads > 1 {
+            let mut secs = Vec::new();
+            for _ in 0..rounds {
+                let t0 = Instant::now();
+                encode_parallel(&dispatched, &boxes, &mut out)?;
+                secs.push(t0.elapsed().as_secs_f64());
+            }
+            if out != reference {
+                bail!("{spec}: the parallel encoder disagrees with the scalar encoder");
+            }
+            let s = median(&secs);
+            println!(
+                "  parallel pipeline, {} threads (wall clock): {:.2} ns/code {:.1} M/s",
+                args.threads,
+                s * 1e9 / n as f64,
+                n as f64 / s / 1e6
+            );
+        }
+    }
+    Ok(())
+}
