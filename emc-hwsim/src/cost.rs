@@ -343,9 +343,9 @@ pub fn cost(unit: &Unit) -> Cost {
         "[D] MergeTree SRAM density; Horowitz SRAM access",
     );
     // The output FIFO: each code's bits clocked in and out once.
-    let out_bits = o.output_capacity as f64 * cb * 8.0;
+    let out_bits = unit.output_capacity() as f64 * cb * 8.0;
     add(
-        format!("output FIFO ({} codes)", o.output_capacity),
+        format!("output FIFO ({} codes)", unit.output_capacity()),
         out_bits,
         FLOP_UM2,
         2.0 * cb * 8.0 * FLOP_PJ / out_bits,

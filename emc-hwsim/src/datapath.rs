@@ -64,7 +64,9 @@ pub struct UnitOptions {
     pub iterative_formula: bool,
     /// Input buffer capacity in AABBs.
     pub input_capacity: u32,
-    /// Output FIFO capacity in codes.
+    /// Output FIFO capacity in codes; 0 sizes it to the codes in flight (Little's law:
+    /// `lanes × depth` plus two write bursts, rounded up to a whole burst), see
+    /// [`Unit::output_capacity`]. A smaller FIFO throttles entry through its credits.
     pub output_capacity: u32,
     /// AABBs per read burst (24 bytes each).
     pub read_burst: u32,
@@ -80,7 +82,7 @@ impl Default for UnitOptions {
             size_search: SizeSearch::Binary,
             iterative_formula: false,
             input_capacity: 256,
-            output_capacity: 32,
+            output_capacity: 0,
             read_burst: 8,
             write_burst_bytes: 64,
         }
@@ -379,6 +381,24 @@ impl Unit {
         self.stages.iter().map(|s| s.ii).max().unwrap_or(1)
     }
 
+    /// Codes per write burst.
+    pub fn write_burst(&self) -> u32 {
+        if self.opts.write_burst_bytes == 0 {
+            0
+        } else {
+            (self.opts.write_burst_bytes / self.code_bytes()).max(1)
+        }
+    }
+
+    /// The output FIFO capacity in codes (the option, or the automatic size when it is 0).
+    pub fn output_capacity(&self) -> u32 {
+        if self.opts.output_capacity > 0 {
+            return self.opts.output_capacity;
+        }
+        let wb = self.write_burst().max(1);
+        (self.opts.lanes * self.depth() + 2 * wb).div_ceil(wb) * wb
+    }
+
     /// Bytes per code word written (4 for codes of at most 32 bits, else 8).
     pub fn code_bytes(&self) -> u32 {
         if self.regs.len <= 32 {
@@ -502,62 +522,103 @@ impl Unit {
         t.word
     }
 
-    /// Codes of a slice of boxes through the datapath (specialised loops for the common
-    /// configurations; identical results to [`Unit::code`], which the tests check).
+    /// Codes of a slice of boxes through the datapath (the fast mode). Boxes are processed in
+    /// blocks of [`BLOCK`], stage by stage across the block as the pipeline does, which gives
+    /// the host independent work per stage; results equal [`Unit::code`] (tested).
     pub fn codes(&self, boxes: &[Aabb], out: &mut Vec<u64>) {
         out.clear();
-        out.reserve(boxes.len());
-        match (&self.regs.size, &self.regs.net) {
-            (SizeUnit::None, Network::Fixed { .. }) => {
-                out.extend(boxes.iter().map(|b| self.fast_code::<false, true>(b)))
+        out.resize(boxes.len(), 0);
+        let generic = !matches!(
+            (&self.regs.size, &self.regs.net),
+            (
+                SizeUnit::None | SizeUnit::Thresholds { .. },
+                Network::Fixed { .. } | Network::Benes(_)
+            )
+        );
+        if generic {
+            for (o, b) in out.iter_mut().zip(boxes) {
+                *o = self.code(b);
             }
-            (SizeUnit::Thresholds { .. }, Network::Benes(_)) => {
-                out.extend(boxes.iter().map(|b| self.fast_code::<true, false>(b)))
+            return;
+        }
+        // Network columns as fixed arrays (distance, mask).
+        let mut cols = [(0u32, 0u64); 11];
+        let mut ncols = 0;
+        if let Network::Benes(b) = &self.regs.net {
+            ncols = b.columns();
+            for (i, c) in cols.iter_mut().enumerate().take(ncols) {
+                *c = (b.distance(i), b.masks()[i]);
             }
-            (SizeUnit::None, Network::Benes(_)) => {
-                out.extend(boxes.iter().map(|b| self.fast_code::<false, false>(b)))
-            }
-            _ => out.extend(boxes.iter().map(|b| self.code(b))),
+        }
+        // Threshold keys padded to 256 entries so the search index needs no bounds logic.
+        let mut keys = [u64::MAX; 256];
+        if let SizeUnit::Thresholds { keys: k, .. } = &self.regs.size {
+            keys[..k.len()].copy_from_slice(k);
+        }
+        for (ob, bb) in out.chunks_mut(BLOCK).zip(boxes.chunks(BLOCK)) {
+            self.block(bb, ob, &cols[..ncols], &keys);
         }
     }
 
-    /// The datapath with the stage sequence unrolled for a threshold-or-absent size unit and
-    /// a fixed or Beneš network.
+    /// One block of the fast datapath: positions, d² and threshold search, routing.
     #[inline(always)]
-    fn fast_code<const THRESH: bool, const FIXED: bool>(&self, b: &Aabb) -> u64 {
+    fn block(&self, boxes: &[Aabb], out: &mut [u64], cols: &[(u32, u64)], keys: &[u64; 256]) {
         let r = &self.regs;
-        let lo = b.min.to_array();
-        let hi = b.max.to_array();
-        let mut q = [0u64; 4];
+        let m = boxes.len();
+        let mut q = [[0u64; BLOCK]; 4];
         for a in 0..3 {
-            if r.axis_on[a] {
-                let v = ((lo[a] as f64 + hi[a] as f64) - r.origin2[a]) * r.half_scale[a];
-                q[a] = float_to_fixed(v, r.bits[a]);
+            if !r.axis_on[a] {
+                continue;
+            }
+            let (o2, hs, n) = (r.origin2[a], r.half_scale[a], r.bits[a]);
+            for (j, b) in boxes.iter().enumerate() {
+                let v = ((b.min[a] as f64 + b.max[a] as f64) - o2) * hs;
+                q[a][j] = float_to_fixed(v, n);
             }
         }
-        if THRESH {
-            if let SizeUnit::Thresholds { bits, keys } = &r.size {
-                let dx = hi[0] as f64 - lo[0] as f64;
-                let dy = hi[1] as f64 - lo[1] as f64;
-                let dz = hi[2] as f64 - lo[2] as f64;
-                let key = compare_key((dx * dx + dy * dy) + dz * dz);
-                let mut pos = 0u64;
-                for k in 0..*bits {
-                    let stride = 1u64 << (bits - 1 - k);
-                    pos += stride * (keys[(pos + stride) as usize] <= key) as u64;
+        if let SizeUnit::Thresholds { bits, .. } = &r.size {
+            let mut key = [0u64; BLOCK];
+            for (j, b) in boxes.iter().enumerate() {
+                let dx = b.max.x as f64 - b.min.x as f64;
+                let dy = b.max.y as f64 - b.min.y as f64;
+                let dz = b.max.z as f64 - b.min.z as f64;
+                key[j] = compare_key((dx * dx + dy * dy) + dz * dz);
+            }
+            for step in 0..*bits {
+                let stride = 1u64 << (bits - 1 - step);
+                for j in 0..m {
+                    let p = q[3][j];
+                    q[3][j] = p + stride * (keys[((p + stride) & 255) as usize] <= key[j]) as u64;
                 }
-                q[3] = pos;
             }
         }
-        if FIXED {
-            morton_wires(q[0], q[1], q[2])
-        } else if let Network::Benes(n) = &r.net {
-            n.apply(self.packed(&q))
-        } else {
-            unreachable!("fast_code is only instantiated for fixed and Beneš networks")
+        if let Network::Fixed { .. } = r.net {
+            for j in 0..m {
+                out[j] = morton_wires(q[0][j], q[1][j], q[2][j]);
+            }
+            return;
         }
+        let mut w = [0u64; BLOCK];
+        for c in 0..4 {
+            if r.bits[c] > 0 {
+                let off = r.offset[c];
+                for j in 0..m {
+                    w[j] |= q[c][j] << off;
+                }
+            }
+        }
+        for &(d, mask) in cols {
+            for x in w.iter_mut() {
+                let t = ((*x >> d) ^ *x) & mask;
+                *x ^= t | (t << d);
+            }
+        }
+        out.copy_from_slice(&w[..m]);
     }
 }
+
+/// Boxes per block of the fast datapath.
+pub const BLOCK: usize = 32;
 
 /// The stage list a configuration instantiates.
 fn build_stages(r: &Registers, opts: &UnitOptions) -> Vec<Stage> {

@@ -82,13 +82,9 @@ impl Unit {
             ii: self.lane_ii() as u64,
             depth: self.depth() as u64,
             in_cap: o.input_capacity as u64,
-            out_cap: o.output_capacity as u64,
+            out_cap: self.output_capacity() as u64,
             read_burst: o.read_burst as u64,
-            write_burst: (o.write_burst_bytes as u64 / cb).max(if o.write_burst_bytes == 0 {
-                0
-            } else {
-                1
-            }),
+            write_burst: self.write_burst() as u64,
             code_bytes: cb,
         }
     }

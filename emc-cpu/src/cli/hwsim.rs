@@ -48,8 +48,8 @@ pub struct HwsimArgs {
     /// Input buffer in AABBs.
     #[arg(long, default_value_t = 256)]
     pub input_capacity: u32,
-    /// Output FIFO in codes.
-    #[arg(long, default_value_t = 32)]
+    /// Output FIFO in codes (0: sized to the codes in flight, lanes × depth + 2 bursts).
+    #[arg(long, default_value_t = 0)]
     pub output_capacity: u32,
     /// AABBs per read burst.
     #[arg(long, default_value_t = 8)]
