@@ -501,3 +501,84 @@ fn backend_and_normalization_names() {
         Err(Error::BadLayoutOption)
     );
 }
+
+/// Dispatch: pdep only where BMI2 is present and not microcoded (AMD/Hygon before family
+/// 0x19), decided once per encoder, reported with its reason; forcing works or errors clearly.
+#[test]
+fn dispatch_follows_the_cpu_rules() {
+    use emc_core::cpu::CpuInfo;
+    let cpu = |vendor: &[u8; 12], family: u32, bmi2: bool| CpuInfo {
+        vendor: *vendor,
+        family,
+        model: 1,
+        bmi2,
+        avx2: true,
+    };
+    let rules: [(&[u8; 12], u32, bool, bool); 8] = [
+        (b"AuthenticAMD", 0x15, true, false), // Excavator
+        (b"AuthenticAMD", 0x17, true, false), // Zen 1, Zen+, Zen 2
+        (b"HygonGenuine", 0x18, true, false), // Dhyana
+        (b"AuthenticAMD", 0x19, true, true),  // Zen 3, Zen 4
+        (b"AuthenticAMD", 0x1A, true, true),  // Zen 5
+        (b"GenuineIntel", 0x06, true, true),
+        (b"GenuineIntel", 0x06, false, false),
+        (b"AuthenticAMD", 0x19, false, false),
+    ];
+    for (v, fam, bmi2, fast) in rules {
+        let info = cpu(v, fam, bmi2);
+        assert_eq!(info.fast_pdep(), fast, "{} {fam:#x}", info.vendor_str());
+        assert!(!info.pdep_reason().is_empty());
+    }
+    let here = emc_core::cpu::detect();
+    eprintln!(
+        "this CPU: {} family {:#x} model {:#x}, bmi2 {}, avx2 {}: {}",
+        here.vendor_str(),
+        here.family,
+        here.model,
+        here.bmi2,
+        here.avx2,
+        here.pdep_reason()
+    );
+    let frame = Frame::new(&[pt([0.0; 3]), pt([1.0, 2.0, 3.0])]).unwrap();
+    for spec in LayoutSpec::STANDARD {
+        let enc = Encoder::new(&spec, &frame);
+        let want = if here.fast_pdep() {
+            Backend::Pdep
+        } else {
+            Backend::Table
+        };
+        assert_eq!(enc.backend(), want, "{spec}");
+        assert_eq!(enc.choice(), emc_core::Choice::Auto);
+        assert!(enc.reason().starts_with(want.name()), "{}", enc.reason());
+        let layout = *enc.layout();
+        for b in Backend::ALL {
+            match Encoder::with_backend(layout, &frame, b) {
+                Ok(e) => {
+                    assert_eq!(e.backend(), b);
+                    assert_eq!(e.choice(), emc_core::Choice::Forced);
+                }
+                Err(err) => {
+                    assert_eq!(err, Error::BackendUnavailable(b));
+                    // Only magic on irregular patterns and pdep without BMI2 can fail.
+                    assert!(
+                        (b == Backend::Magic && !spec.to_string().starts_with("morton"))
+                            || (b == Backend::Pdep && !here.bmi2),
+                        "{spec} {b}"
+                    );
+                }
+            }
+        }
+    }
+    // Magic serves the regular layouts.
+    for spec in [
+        LayoutSpec::Morton30,
+        LayoutSpec::Morton63,
+        LayoutSpec::Emc64Sort,
+    ] {
+        let l = spec.resolve(frame.extent());
+        assert!(
+            Encoder::with_backend(l, &frame, Backend::Magic).is_ok(),
+            "{spec}"
+        );
+    }
+}
