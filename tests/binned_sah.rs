@@ -222,6 +222,19 @@ fn clustered_boxes(n: usize, seed: u64) -> Vec<Aabb> {
         .collect()
 }
 
+/// Nine kinds of identical boxes, shuffled: clusters of thousands whose halving runs on the
+/// parallel path.
+fn nine_clusters(n: usize, seed: u64) -> Vec<Aabb> {
+    let mut r = Rng(seed);
+    (0..n)
+        .map(|_| {
+            let x = (r.next() % 3) as f32 * 10.0;
+            let s = (r.next() % 3) as f32;
+            bx([x, 0.0, 0.0], [x + 1.0 + s, 1.0, 1.0])
+        })
+        .collect()
+}
+
 // ---------------------------------------------------------------------------------------------
 // Agreement with the plain reference.
 
@@ -244,6 +257,7 @@ fn matches_plain_reference_on_large_inputs() {
     for (what, boxes) in [
         ("random 70k", random_boxes(70_000, 1)),
         ("clustered 70k", clustered_boxes(70_000, 2)),
+        ("nine big clusters", nine_clusters(40_000, 9)),
     ] {
         let (got, _) = build_checked(&boxes, DEFAULT_BINS, what);
         assert_same_tree(&got, &plain_binned_sah(&boxes, DEFAULT_BINS), what);
