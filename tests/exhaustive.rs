@@ -250,88 +250,122 @@ fn sweep_frames() -> Vec<SweepFrame> {
     ]
 }
 
-/// Walk `f32` ranks `start, start + stride, …` (value order) on one axis of each sweep frame:
-/// quantised values are monotone, 0 below the frame and NaN, `2^n − 1` above it, the fast
-/// quantiser equals the reference formulas, `encode_batch` equals per-box `encode`, and the
-/// decoded channel is the quantised value.
+/// First and last value of a run that must be non-decreasing.
+#[derive(Clone, Copy, Default)]
+struct Run(Option<(u64, u64)>);
+
+impl Run {
+    fn push(&mut self, v: u64, what: impl FnOnce() -> String) {
+        self.0 = match self.0 {
+            None => Some((v, v)),
+            Some((first, last)) => {
+                assert!(last <= v, "not monotone: {}", what());
+                Some((first, v))
+            }
+        };
+    }
+}
+
+/// Check that consecutive chunk runs join monotonically; returns the last value.
+fn join(runs: impl Iterator<Item = Run>, name: &str) -> u64 {
+    let mut prev = 0;
+    for (first, last) in runs.filter_map(|r| r.0) {
+        assert!(prev <= first, "{name}: not monotone across chunks");
+        prev = last;
+    }
+    prev
+}
+
+/// Walk `f32` ranks `0, stride, 2·stride, …` (value order) on one axis of each sweep frame,
+/// with two boxes per value `v`: the point at `v` and the box from 0 to `v` on that axis.
+/// Checks: the position value is monotone in `v`, 0 below the frame and for NaN, `2^n − 1` on
+/// and above the max face; the size value is monotone in `v ≥ 0` and all ones once `v ≥ D`;
+/// the fast quantiser equals the reference formulas; `encode_batch` (the dispatched SIMD
+/// pipeline) equals per-box `encode` (scalar); decode gives the quantised values back.
 fn f32_sweep(stride: u64) {
     for f in sweep_frames() {
         let frame = Frame::new(&f.boxes).unwrap();
         let enc = Encoder::new(&f.spec, &frame);
+        let quant = enc.quantizer();
         let a = f.axis;
         let n = enc.layout().bit_counts()[a];
         let max = ones(n);
+        let smax = ones(enc.layout().bits(Channel::S));
         let (lo, hi) = (frame.origin()[a], frame.origin()[a] + frame.extent()[a]);
-        let centre = [
-            (frame.origin()[0] + frame.extent()[0] * 0.5) as f32,
-            (frame.origin()[1] + frame.extent()[1] * 0.5) as f32,
-            (frame.origin()[2] + frame.extent()[2] * 0.5) as f32,
-        ];
+        let centre = [0, 1, 2].map(|i| (frame.origin()[i] + frame.extent()[i] * 0.5) as f32);
         eprintln!(
-            "{}: {} via {}, axis {a} has {n} bits, stride {stride}",
+            "{}: {} via {} [{}], axis {a} has {n} bits, stride {stride}",
             f.name,
             enc.layout(),
-            enc.backend()
+            enc.backend(),
+            enc.pipeline()
         );
         assert!(n > 0);
         const CHUNK: u64 = 1 << 16;
         let total = (1u64 << 32).div_ceil(stride);
-        // Per chunk: (first, last) quantised value of the finite inputs, for the boundaries.
-        let ends: Vec<Option<(u64, u64)>> = (0..total.div_ceil(CHUNK))
+        let runs: Vec<(Run, Run)> = (0..total.div_ceil(CHUNK))
             .into_par_iter()
             .map(|ci| {
-                let ranks =
-                    (ci * CHUNK..((ci + 1) * CHUNK).min(total)).map(|k| (k * stride) as u32);
-                let boxes: Vec<Aabb> = ranks
-                    .map(|r| {
-                        let mut p = centre;
-                        p[a] = f32_of_rank(r);
-                        pt(p)
-                    })
+                let ranks: Vec<u32> = (ci * CHUNK..((ci + 1) * CHUNK).min(total))
+                    .map(|k| (k * stride) as u32)
                     .collect();
+                let mut boxes: Vec<Aabb> = Vec::with_capacity(2 * ranks.len());
+                for &r in &ranks {
+                    let v = f32_of_rank(r);
+                    let mut p = centre;
+                    p[a] = v;
+                    boxes.push(pt(p));
+                    let mut q = centre;
+                    q[a] = 0.0;
+                    let mut sized = pt(q);
+                    if !v.is_nan() {
+                        sized.min[a] = v.min(0.0);
+                        sized.max[a] = v.max(0.0);
+                    }
+                    boxes.push(sized);
+                }
                 let mut batch = vec![0u64; boxes.len()];
                 enc.encode_batch(&boxes, &mut batch).unwrap();
-                let mut ends: Option<(u64, u64)> = None;
+                let (mut pos, mut size) = (Run::default(), Run::default());
                 for (b, &code) in boxes.iter().zip(&batch) {
-                    let v = b.min[a];
-                    let q = enc.quantizer().quantize(b);
-                    assert_eq!(
-                        q,
-                        enc.quantizer().quantize_reference(b),
-                        "{}: {v:e}",
-                        f.name
-                    );
-                    assert_eq!(code, enc.encode(b), "{}: batch != scalar at {v:e}", f.name);
-                    assert_eq!(enc.decode(code)[a], q[a], "{}: decode at {v:e}", f.name);
-                    let qa = q[a];
-                    assert!(qa <= max, "{}: {v:e} gives {qa} > {max}", f.name);
+                    let q = quant.quantize(b);
+                    assert_eq!(q, quant.quantize_reference(b), "{}: {b:?}", f.name);
+                    assert_eq!(code, enc.encode(b), "{}: batch != scalar, {b:?}", f.name);
+                    assert_eq!(enc.decode(code), q, "{}: decode, {b:?}", f.name);
+                    assert!(q[a] <= max && q[3] <= smax, "{}: {q:?} too wide", f.name);
+                }
+                for (pair, &r) in boxes.chunks(2).zip(&ranks) {
+                    let v = f32_of_rank(r);
+                    let (qp, qs) = (quant.quantize(&pair[0]), quant.quantize(&pair[1]));
                     if v.is_nan() {
-                        assert_eq!(qa, 0, "{}: NaN must give 0", f.name);
+                        assert_eq!(qp[a], 0, "{}: NaN must give 0", f.name);
                         continue;
                     }
                     if (v as f64) <= lo {
-                        assert_eq!(qa, 0, "{}: {v:e} below the frame", f.name);
+                        assert_eq!(qp[a], 0, "{}: {v:e} below the frame", f.name);
                     }
                     if (v as f64) >= hi {
-                        assert_eq!(qa, max, "{}: {v:e} on/above the max face", f.name);
+                        assert_eq!(qp[a], max, "{}: {v:e} on/above the max face", f.name);
                     }
-                    ends = match ends {
-                        None => Some((qa, qa)),
-                        Some((first, last)) => {
-                            assert!(last <= qa, "{}: not monotone at {v:e}", f.name);
-                            Some((first, qa))
+                    pos.push(qp[a], || format!("{} position at {v:e}", f.name));
+                    if v >= 0.0 {
+                        size.push(qs[3], || format!("{} size at {v:e}", f.name));
+                        if v as f64 >= frame.diagonal() {
+                            assert_eq!(qs[3], smax, "{}: size {v:e} >= D", f.name);
                         }
-                    };
+                    }
                 }
-                ends
+                (pos, size)
             })
             .collect();
-        let mut prev = 0;
-        for (first, last) in ends.into_iter().flatten() {
-            assert!(prev <= first, "{}: not monotone across chunks", f.name);
-            prev = last;
-        }
-        assert_eq!(prev, max, "{}: +inf must reach the max", f.name);
+        let last = join(runs.iter().map(|r| r.0), f.name);
+        assert_eq!(last, max, "{}: +inf must reach the max", f.name);
+        let last = join(runs.iter().map(|r| r.1), f.name);
+        assert_eq!(
+            last, smax,
+            "{}: the largest size must reach the max",
+            f.name
+        );
     }
 }
 
