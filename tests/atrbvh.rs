@@ -227,6 +227,14 @@ fn collapsed_sah(bvh: &Bvh) -> f64 {
     cost[bvh.root as usize] / bvh.nodes[bvh.root as usize].bounds.area_f64()
 }
 
+/// Half the surface area in `f32`: `(dx·dy + dy·dz) + dz·dx`, negative extents as 0.
+fn plain_half_area(b: Aabb) -> f32 {
+    let dx = (b.max.x - b.min.x).max(0.0);
+    let dy = (b.max.y - b.min.y).max(0.0);
+    let dz = (b.max.z - b.min.z).max(0.0);
+    (dx * dy + dy * dz) + dz * dx
+}
+
 // ---------------------------------------------------------------------------------------------
 // A plain serial re-statement of the algorithm: post-order recursion (by explicit stack), the
 // same treelet formation and clustering rules, written independently of the library's layout.
@@ -309,40 +317,40 @@ fn reference_restructure(bvh: &mut Bvh, aabbs: &[Aabb], cfg: &AtrConfig) -> (u64
                 continue;
             }
             formed += 1;
-            // Clustering with the distance recomputed from the boxes each time.
+            // Clustering over a list of clusters, the distance recomputed from the boxes each
+            // time; the merged cluster replaces the first of the pair, the second is
+            // swap-removed.
             let k = leaves.len();
-            let mut cl: Vec<Option<(Aabb, f64, u32, u32)>> = leaves
+            let mut cl: Vec<(Aabb, f64, u32, u32)> = leaves
                 .iter()
                 .map(|&x| {
-                    Some((
+                    (
                         bvh.nodes[x as usize].bounds,
                         cost[x as usize],
                         count[x as usize],
                         x,
-                    ))
+                    )
                 })
                 .collect();
             let mut writes = Vec::new();
             for m in 0..k - 1 {
-                let mut best: Option<(usize, usize, f64)> = None;
-                for i in 0..k {
-                    for j in i + 1..k {
-                        if let (Some(a), Some(b)) = (cl[i], cl[j]) {
-                            let d = a.0.union(&b.0).area_f64();
-                            if best.is_none_or(|(_, _, bd)| d < bd) {
-                                best = Some((i, j, d));
-                            }
+                let mut best: Option<(usize, usize, f32)> = None;
+                for i in 0..cl.len() {
+                    for j in i + 1..cl.len() {
+                        let d = plain_half_area(cl[i].0.union(&cl[j].0));
+                        if best.is_none_or(|(_, _, bd)| d < bd) {
+                            best = Some((i, j, d));
                         }
                     }
                 }
                 let (i, j, _) = best.unwrap();
-                let (a, b) = (cl[i].unwrap(), cl[j].unwrap());
+                let (a, b) = (cl[i], cl[j]);
                 let u = a.0.union(&b.0);
                 let c = cfg.ct * u.area_f64() + a.1 + b.1;
                 let slot = slots[k - 2 - m];
                 writes.push((slot, Node::inner(u, a.3, b.3), c, a.2 + b.2));
-                cl[i] = Some((u, c, a.2 + b.2, slot));
-                cl[j] = None;
+                cl[i] = (u, c, a.2 + b.2, slot);
+                cl.swap_remove(j);
             }
             let new = writes.last().unwrap().2;
             if new < old * (1.0 - 1e-9) {

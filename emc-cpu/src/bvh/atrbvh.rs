@@ -13,8 +13,10 @@
 //!    its two children, the treelet leaf with the largest surface area that is not a real leaf is
 //!    replaced by its two children until the treelet has `treelet_size` leaves.
 //! 4. The treelet leaves are re-clustered agglomeratively: a distance matrix
-//!    `d(i, j) = A(box_i ∪ box_j)` is kept, and `k − 1` times the closest pair merges into a new
-//!    cluster (ties: the first pair in row-major order `i < j`).
+//!    `d(i, j) = A(box_i ∪ box_j)` ([`half_area`], `f32`) is kept, and `k − 1` times the closest
+//!    pair merges into a new cluster. The live clusters form a list; the merged cluster takes the
+//!    lower position of the pair and the last cluster moves into the higher one. Ties go to the
+//!    first pair `i < j` in row-major order of that list.
 //! 5. If the new topology costs less, it is written back into the treelet's own inner-node slots
 //!    (the treelet root keeps its slot, so nothing above it changes).
 //!
@@ -24,6 +26,7 @@
 use std::sync::atomic::{AtomicU32, Ordering};
 
 use emc_core::Aabb;
+use glam::Vec3;
 use rayon::prelude::*;
 
 use super::node::{Bvh, Node};
@@ -132,6 +135,14 @@ pub struct AtrStats {
     pub sah_before: f64,
     /// SAH of the output tree with the configured `ct`/`ci` ([`sah_cost`]).
     pub sah_after: f64,
+}
+
+/// Half the surface area of a box in `f32`, `(dx·dy + dy·dz) + dz·dx` with negative extents
+/// clamped to 0: the clustering distance (only compared, never summed).
+#[inline]
+pub fn half_area(b: &Aabb) -> f32 {
+    let d = (b.max - b.min).max(Vec3::ZERO);
+    d.x * d.y + d.y * d.z + d.z * d.x
 }
 
 /// Per-node bookkeeping of a pass: the subtree cost, the parent and the primitive count.
@@ -432,12 +443,12 @@ impl Pass<'_> {
     unsafe fn recluster(&self, p: u32, t: &Treelet, old_cost: f64) -> bool {
         const M: usize = MAX_TREELET_SIZE;
         let k = t.n_leaves;
-        // Cluster state, indexed by the cluster's position 0..k (a merge keeps the lower one).
+        // The live clusters sit at positions 0..live; a merge keeps the lower position and moves
+        // the last cluster into the higher one (a swap-remove).
         let mut boxes = [Aabb::EMPTY; M];
         let mut costs = [0.0f64; M];
         let mut counts = [0u32; M];
         let mut refs = [0u32; M];
-        let mut alive = [false; M];
         for i in 0..k {
             // SAFETY: treelet leaves lie in `p`'s subtree.
             let (nd, a) = unsafe { (self.nodes.get(t.leaves[i]), self.aux.get(t.leaves[i])) };
@@ -445,46 +456,54 @@ impl Pass<'_> {
             costs[i] = a.cost;
             counts[i] = a.count;
             refs[i] = t.leaves[i];
-            alive[i] = true;
         }
-        let mut dist = [[0.0f64; M]; M];
+        // Symmetric distance matrix (the diagonal is never read).
+        let mut dist = [[0.0f32; M]; M];
         for i in 0..k {
             for j in i + 1..k {
-                dist[i][j] = boxes[i].union(&boxes[j]).area_f64();
+                let d = half_area(&boxes[i].union(&boxes[j]));
+                dist[i][j] = d;
+                dist[j][i] = d;
             }
         }
         // Merge `m` (0-based) goes to slot `slots[k - 2 - m]`: the last merge is the root `p`.
         let mut merges = [(Aabb::EMPTY, 0u32, 0u32, 0.0f64, 0u32); M - 1];
+        let mut live = k;
         for (m, merge) in merges.iter_mut().enumerate().take(k - 1) {
-            let (mut bi, mut bj, mut bd) = (usize::MAX, usize::MAX, f64::INFINITY);
-            for i in 0..k {
-                if !alive[i] {
-                    continue;
-                }
-                for j in i + 1..k {
-                    if alive[j] && (dist[i][j] < bd || bi == usize::MAX) {
-                        (bi, bj, bd) = (i, j, dist[i][j]);
+            // Closest pair; ties go to the first pair in row-major order.
+            let (mut bi, mut bj, mut bd) = (0usize, 1usize, dist[0][1]);
+            for (i, row) in dist.iter().enumerate().take(live) {
+                for (j, &d) in row.iter().enumerate().take(live).skip(i + 1) {
+                    if d < bd {
+                        (bi, bj, bd) = (i, j, d);
                     }
                 }
             }
             let b = boxes[bi].union(&boxes[bj]);
             let c = self.ct * b.area_f64() + costs[bi] + costs[bj];
-            let slot = t.slots[k - 2 - m];
             let count = counts[bi].saturating_add(counts[bj]);
             *merge = (b, refs[bi], refs[bj], c, count);
             boxes[bi] = b;
             costs[bi] = c;
             counts[bi] = count;
-            refs[bi] = slot;
-            alive[bj] = false;
-            for o in 0..k {
-                if alive[o] && o != bi {
-                    let d = b.union(&boxes[o]).area_f64();
-                    if o < bi {
-                        dist[o][bi] = d;
-                    } else {
-                        dist[bi][o] = d;
-                    }
+            refs[bi] = t.slots[k - 2 - m];
+            let last = live - 1;
+            if bj != last {
+                boxes[bj] = boxes[last];
+                costs[bj] = costs[last];
+                counts[bj] = counts[last];
+                refs[bj] = refs[last];
+                for o in 0..live {
+                    dist[bj][o] = dist[last][o];
+                    dist[o][bj] = dist[o][last];
+                }
+            }
+            live = last;
+            for o in 0..live {
+                if o != bi {
+                    let d = half_area(&b.union(&boxes[o]));
+                    dist[bi][o] = d;
+                    dist[o][bi] = d;
                 }
             }
         }
