@@ -1,20 +1,22 @@
-//! Large build buffers backed by transparent huge pages where the OS allows it: the pipeline
-//! allocates ~100 bytes per primitive of fresh memory, and with 4 KiB pages the page faults
-//! alone cost as much as a whole phase. Only a hint: without THP the buffers are ordinary.
+//! Large build buffers, optionally backed by transparent huge pages: the pipeline allocates
+//! ~100 bytes per primitive of fresh memory and 4 KiB page faults cost about a phase. Opt-in
+//! (`EMC_HUGEPAGE=1`): on a busy machine THP compaction stalls made builds slower and erratic.
 
 use rayon::prelude::*;
 
 /// Buffers smaller than this are left alone (a huge page is 2 MiB).
 const MIN_BYTES: usize = 4 << 20;
 
-/// Ask the kernel to back the 2 MiB-aligned interior of `v`'s (not yet touched) capacity with
-/// huge pages. Harmless if THP is off or the call fails.
+/// With `EMC_HUGEPAGE=1`, ask the kernel to back the 2 MiB-aligned interior of `v`'s (not yet
+/// touched) capacity with huge pages. Harmless if THP is off or the call fails.
 fn advise<T>(v: &Vec<T>) {
     #[cfg(target_os = "linux")]
     {
         const HUGE: usize = 2 << 20;
         let bytes = v.capacity() * std::mem::size_of::<T>();
-        if bytes < MIN_BYTES || std::env::var_os("EMC_NO_HUGEPAGE").is_some() {
+        static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+        let on = *ON.get_or_init(|| std::env::var_os("EMC_HUGEPAGE").is_some_and(|v| v == "1"));
+        if bytes < MIN_BYTES || !on {
             return;
         }
         let start = v.as_ptr() as usize;

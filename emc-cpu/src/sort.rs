@@ -102,13 +102,21 @@ fn scatter_chunk<K: RadixKey>(
     kdst: [&mut [K]; RADIX],
     vdst: [&mut [u32]; RADIX],
 ) {
-    let mut fill = [0usize; RADIX];
+    // Per-bucket write cursors. The caller sized bucket `d`'s sub-slices to exactly this chunk's
+    // count of digit `d` in this pass, so each cursor ends exactly at its slice's end.
+    let mut kp: [*mut K; RADIX] = kdst.map(|s| s.as_mut_ptr_range().start);
+    let mut vp: [*mut u32; RADIX] = vdst.map(|s| s.as_mut_ptr_range().start);
     for (&k, &v) in keys.iter().zip(vals) {
         let d = k.digit(pass);
-        let f = fill[d];
-        kdst[d][f] = k;
-        vdst[d][f] = v;
-        fill[d] = f + 1;
+        // SAFETY: `kp[d]`/`vp[d]` point into the chunk's own, exclusively borrowed sub-slices
+        // of bucket `d`, which hold one slot per key of this chunk with digit `d` (histogram of
+        // the same chunk and pass); each key advances its cursor once, so no write leaves them.
+        unsafe {
+            kp[d].write(k);
+            vp[d].write(v);
+            kp[d] = kp[d].add(1);
+            vp[d] = vp[d].add(1);
+        }
     }
 }
 
@@ -137,7 +145,7 @@ pub fn sort_pairs<K: RadixKey>(
     let chunks = if n < SERIAL_BELOW {
         1
     } else {
-        (rayon::current_num_threads() * 4).clamp(1, n / 4096)
+        rayon::current_num_threads().clamp(1, n / 4096)
     };
     let chunk_len = n.div_ceil(chunks);
 
@@ -161,7 +169,10 @@ pub fn sort_pairs<K: RadixKey>(
             report.skipped += 1;
             continue;
         }
-        let hists: Vec<[u32; RADIX]> = if !first_done {
+        let hists: Vec<[u32; RADIX]> = if chunks == 1 {
+            // One chunk: its histogram is the (permutation-invariant) total.
+            vec![core::array::from_fn(|b| totals[pass][b] as u32)]
+        } else if !first_done {
             first_hists.iter().map(|h| h[pass]).collect()
         } else {
             keys.par_chunks(chunk_len)

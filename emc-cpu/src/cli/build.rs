@@ -14,7 +14,7 @@ pub struct BuildArgs {
     /// A scene file (`.obj`, `.obj.zst`), a shared scene name, or `builtin:NAME`.
     pub scene: String,
     /// Code layout: morton30, morton63, emc64-sort, emc64-var, emc32-var, emc64-var-nosize or
-    /// custom:PATTERN[:linear].
+    /// custom:PATTERN (optionally followed by :linear).
     #[arg(long, default_value = "emc64-var")]
     pub layout: String,
     /// Hierarchy builder: lbvh, lbvh-apetrei or binned-sah.
