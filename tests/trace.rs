@@ -6,6 +6,8 @@ use std::path::PathBuf;
 use std::sync::OnceLock;
 
 use emc_core::Aabb;
+use emc_core::LayoutSpec;
+use emc_cpu::build::Builder;
 use emc_cpu::bvh::{Bvh, Node};
 use emc_cpu::scene::{self, Scene, SceneOptions};
 use emc_cpu::trace::image::{shade, Image, Shading};
@@ -15,8 +17,6 @@ use emc_cpu::trace::wide::{WideNode, MAX_DEPTH, WIDTH};
 use emc_cpu::trace::workload::{
     primary_rays, protocol_counts, trace_closest, Camera, CameraMode, SceneFrame,
 };
-use emc_core::LayoutSpec;
-use emc_cpu::build::Builder;
 use emc_cpu::trace::{
     Accel, BuildOptions, Hit, NodeTest, Preset, Ray, TraceError, TraceStats, WideBvh,
 };
@@ -297,9 +297,17 @@ fn simd_node_test_equals_scalar_bit_for_bit() {
             }
         }
         let o = if k % 3 == 0 {
-            Vec3::new(coords[rng.below(7)], coords[rng.below(7)], coords[rng.below(7)])
+            Vec3::new(
+                coords[rng.below(7)],
+                coords[rng.below(7)],
+                coords[rng.below(7)],
+            )
         } else {
-            Vec3::new(rng.range(-3.0, 3.0), rng.range(-3.0, 3.0), rng.range(-3.0, 3.0))
+            Vec3::new(
+                rng.range(-3.0, 3.0),
+                rng.range(-3.0, 3.0),
+                rng.range(-3.0, 3.0),
+            )
         };
         let mut d = rng.dir();
         if k % 4 == 0 {
@@ -312,10 +320,17 @@ fn simd_node_test_equals_scalar_bit_for_bit() {
             d = Vec3::Y;
         }
         let r = PreRay::new(&Ray::new(o, d));
-        let tfar = if k % 5 == 0 { rng.range(0.0, 4.0) } else { f32::INFINITY };
+        let tfar = if k % 5 == 0 {
+            rng.range(0.0, 4.0)
+        } else {
+            f32::INFINITY
+        };
         let (m_ref, d_ref) = node_test_scalar(&node, &r, tfar);
         let (m_simd, d_simd) = node_test_simd(&node, &r, tfar);
-        assert_eq!(m_ref, m_simd, "mask differs for ray {o:?} {d:?} node {node:?}");
+        assert_eq!(
+            m_ref, m_simd,
+            "mask differs for ray {o:?} {d:?} node {node:?}"
+        );
         for lane in 0..WIDTH {
             if m_ref & (1 << lane) != 0 {
                 assert_eq!(d_ref[lane].to_bits(), d_simd[lane].to_bits());
@@ -346,8 +361,13 @@ fn axis_parallel_and_zero_component_rays_give_no_nan() {
         for xi in 0..=16 {
             let o = Vec3::new(xi as f32 * 0.5, yi as f32 * 0.5, 1.0);
             for d in [Vec3::new(0.0, 0.0, -1.0), Vec3::new(-0.0, -0.0, -1.0)] {
-                let h = closest::<false>(&bvh, &Ray::new(o, d), NodeTest::Simd, &mut TraceStats::default())
-                    .unwrap_or_else(|| panic!("ray down at {o:?} leaked"));
+                let h = closest::<false>(
+                    &bvh,
+                    &Ray::new(o, d),
+                    NodeTest::Simd,
+                    &mut TraceStats::default(),
+                )
+                .unwrap_or_else(|| panic!("ray down at {o:?} leaked"));
                 assert_eq!(h.t, 1.0);
                 assert!(!h.u.is_nan() && !h.v.is_nan());
                 let b = brute_force_closest(&Ray::new(o, d), &tris).unwrap();
@@ -389,7 +409,11 @@ fn conversion_refuses_bad_trees_and_too_deep_trees() {
     let tris: Vec<[Vec3; 3]> = (0..400)
         .map(|i| {
             let x = i as f32;
-            [Vec3::new(x, 0.0, 0.0), Vec3::new(x + 0.5, 0.0, 0.0), Vec3::new(x, 1.0, 0.0)]
+            [
+                Vec3::new(x, 0.0, 0.0),
+                Vec3::new(x + 0.5, 0.0, 0.0),
+                Vec3::new(x, 1.0, 0.0),
+            ]
         })
         .collect();
     // A caterpillar: every inner node has a leaf and the rest of the chain.
@@ -397,7 +421,9 @@ fn conversion_refuses_bad_trees_and_too_deep_trees() {
         let mut nodes = Vec::new();
         let mut prim = Vec::new();
         for i in 0..n - 1 {
-            let b = tris[i..n].iter().fold(Aabb::EMPTY, |b, t| b.union(&tri_box(t)));
+            let b = tris[i..n]
+                .iter()
+                .fold(Aabb::EMPTY, |b, t| b.union(&tri_box(t)));
             let me = nodes.len() as u32;
             nodes.push(Node::inner(b, me + 1, me + 2));
             nodes.push(Node::leaf(tri_box(&tris[i]), i as u32, 1));
@@ -415,7 +441,12 @@ fn conversion_refuses_bad_trees_and_too_deep_trees() {
     let ok = caterpillar(200);
     let w = WideBvh::from_bvh2(&ok, &tris[..200]).expect("a 200-chain fits");
     assert!(w.depth <= MAX_DEPTH);
-    check_against_brute_force("caterpillar", &tris[..200], &w, &test_rays(&tris[..200], 2000, 3));
+    check_against_brute_force(
+        "caterpillar",
+        &tris[..200],
+        &w,
+        &test_rays(&tris[..200], 2000, 3),
+    );
     match WideBvh::from_bvh2(&caterpillar(400), &tris) {
         Err(TraceError::TooDeep { depth, max }) => assert!(depth > max),
         other => panic!("a 400-chain must be refused, got {other:?}"),
@@ -429,7 +460,10 @@ fn conversion_refuses_bad_trees_and_too_deep_trees() {
     ));
     let mut bad = median_split(&tris, 1);
     bad.nodes[0] = Node::inner(bad.nodes[0].bounds, 1, 999_999);
-    assert!(matches!(WideBvh::from_bvh2(&bad, &tris), Err(TraceError::InvalidBvh(_))));
+    assert!(matches!(
+        WideBvh::from_bvh2(&bad, &tris),
+        Err(TraceError::InvalidBvh(_))
+    ));
     assert!(matches!(
         WideBvh::from_bvh2(&Bvh::default(), &[]),
         Err(TraceError::NoTriangles)
@@ -454,11 +488,21 @@ fn api_rejects_bad_meshes() {
     let o = BuildOptions::default();
     assert!(matches!(
         Accel::build(&v, &[[0, 1, 3]], &o),
-        Err(TraceError::BadIndex { tri: 0, index: 3, .. })
+        Err(TraceError::BadIndex {
+            tri: 0,
+            index: 3,
+            ..
+        })
     ));
-    assert!(matches!(Accel::build(&v, &[], &o), Err(TraceError::NoTriangles)));
+    assert!(matches!(
+        Accel::build(&v, &[], &o),
+        Err(TraceError::NoTriangles)
+    ));
     let nan = [Vec3::ZERO, Vec3::X, Vec3::new(f32::NAN, 0.0, 0.0)];
-    assert!(matches!(Accel::build(&nan, &[[0, 1, 2]], &o), Err(TraceError::NonFinite(0))));
+    assert!(matches!(
+        Accel::build(&nan, &[[0, 1, 2]], &o),
+        Err(TraceError::NonFinite(0))
+    ));
     for bad in [
         BuildOptions {
             leaf_size: Some(0),
@@ -507,7 +551,10 @@ fn scalar_and_simd_traversals_agree_including_work_counters() {
         for r in &rays {
             let a = closest::<true>(&bvh, r, NodeTest::Scalar, &mut s1);
             let c = closest::<true>(&bvh, r, NodeTest::Simd, &mut s2);
-            assert_eq!(a.map(|h| (h.t.to_bits(), h.prim)), c.map(|h| (h.t.to_bits(), h.prim)));
+            assert_eq!(
+                a.map(|h| (h.t.to_bits(), h.prim)),
+                c.map(|h| (h.t.to_bits(), h.prim))
+            );
             assert_eq!(
                 occluded::<true>(&bvh, r, NodeTest::Scalar, &mut s1),
                 occluded::<true>(&bvh, r, NodeTest::Simd, &mut s2)
@@ -523,17 +570,24 @@ fn batch_api_equals_single_rays() {
     let tris = triangles(&s);
     let rays = test_rays(&tris, 4000, 9);
     for preset in [Preset::Fast, Preset::Balanced, Preset::Quality] {
-        let a = Accel::build(&s.vertices, &s.indices, &BuildOptions {
-            threads: Some(2),
-            ..BuildOptions::preset(preset)
-        })
+        let a = Accel::build(
+            &s.vertices,
+            &s.indices,
+            &BuildOptions {
+                threads: Some(2),
+                ..BuildOptions::preset(preset)
+            },
+        )
         .unwrap();
         let hits = a.intersect_batch(&rays);
         let occ = a.occluded_batch(&rays);
         for (i, r) in rays.iter().enumerate() {
             assert_eq!(hits[i], a.intersect(r));
             assert_eq!(occ[i], a.occluded(r));
-            assert_eq!(hits[i].map(|h| (h.t, h.prim)), brute_force_closest(r, &tris).map(|h| (h.t, h.prim)));
+            assert_eq!(
+                hits[i].map(|h| (h.t, h.prim)),
+                brute_force_closest(r, &tris).map(|h| (h.t, h.prim))
+            );
         }
     }
 }
@@ -596,24 +650,33 @@ fn closed_icosphere_is_watertight() {
 // Reference image.
 
 fn reference_path() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/trace-city-normal-128.png")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("data/trace-mixed-normal-128.png")
 }
 
 /// Tolerance: every channel within ±1 of the reference, except at most 16 of the 16,384
 /// pixels (silhouette pixels whose ray may pick another triangle on another platform).
 #[test]
 fn rendered_image_matches_reference() {
-    let s = builtin("city", 20_000);
+    let s = builtin("mixed", 20_000);
     let tris = triangles(&s);
     let a = Accel::from_triangles(tris.clone(), &BuildOptions::preset(Preset::Quality)).unwrap();
     let frame = SceneFrame::of(&tris);
     let cam = Camera::protocol(&frame, CameraMode::Outside);
     let rays = primary_rays(&cam, 128, 128);
     let (hits, _) = trace_closest(a.wide_bvh(), &rays, NodeTest::Simd, false);
-    let img = shade(a.wide_bvh(), &tris, &rays, &hits, (128, 128), frame.diag, Shading::Normal);
+    let img = shade(
+        a.wide_bvh(),
+        &tris,
+        &rays,
+        &hits,
+        (128, 128),
+        frame.diag,
+        Shading::Normal,
+    );
     let path = reference_path();
     if std::env::var_os("EMC_REGEN_TRACE_REF").is_some() {
-        img.write_png(std::fs::File::create(&path).unwrap()).unwrap();
+        img.write_png(std::fs::File::create(&path).unwrap())
+            .unwrap();
         eprintln!("wrote {}", path.display());
         return;
     }
@@ -623,15 +686,25 @@ fn rendered_image_matches_reference() {
     ))
     .unwrap();
     assert_eq!((reference.width, reference.height), (128, 128));
-    let background = img.rgb.chunks(3).filter(|p| p == &emc_cpu::trace::image::BACKGROUND).count();
-    assert!(background > 100 && background < 128 * 128 - 100, "the scene fills part of the frame");
+    let background = img
+        .rgb
+        .chunks(3)
+        .filter(|p| p == &emc_cpu::trace::image::BACKGROUND)
+        .count();
+    assert!(
+        background > 100 && background < 128 * 128 - 100,
+        "the scene fills part of the frame"
+    );
     let off = img
         .rgb
         .chunks(3)
         .zip(reference.rgb.chunks(3))
         .filter(|(p, q)| p.iter().zip(q.iter()).any(|(a, b)| a.abs_diff(*b) > 1))
         .count();
-    assert!(off <= 16, "{off} pixels differ from the reference by more than 1");
+    assert!(
+        off <= 16,
+        "{off} pixels differ from the reference by more than 1"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -683,9 +756,21 @@ fn protocol_counts_agree_with_embree() {
         let c = protocol_counts(a.wide_bvh(), tris, CameraMode::for_scene(name), 1024);
         let close = |got: u64, want: u64| (got as f64 - want as f64).abs() <= 5e-4 * want as f64;
         eprintln!("{name}: {c:?} vs Embree {hits}/{ao}/{occ}");
-        assert!(close(c.primary_hits, hits), "{name}: primary hits {} vs {hits}", c.primary_hits);
-        assert!(close(c.ao_rays, ao), "{name}: AO rays {} vs {ao}", c.ao_rays);
-        assert!(close(c.ao_occluded, occ), "{name}: AO occluded {} vs {occ}", c.ao_occluded);
+        assert!(
+            close(c.primary_hits, hits),
+            "{name}: primary hits {} vs {hits}",
+            c.primary_hits
+        );
+        assert!(
+            close(c.ao_rays, ao),
+            "{name}: AO rays {} vs {ao}",
+            c.ao_rays
+        );
+        assert!(
+            close(c.ao_occluded, occ),
+            "{name}: AO occluded {} vs {occ}",
+            c.ao_occluded
+        );
         tested += 1;
     }
     eprintln!("{tested} shared scenes checked");
@@ -707,7 +792,10 @@ fn shared_scenes_equal_brute_force() {
         // Protocol rays too: a slice of the primary rays.
         let f = SceneFrame::of(tris);
         let cam = Camera::protocol(&f, CameraMode::for_scene(name));
-        let prim: Vec<Ray> = primary_rays(&cam, 256, 256).into_iter().step_by(1093).collect();
+        let prim: Vec<Ray> = primary_rays(&cam, 256, 256)
+            .into_iter()
+            .step_by(1093)
+            .collect();
         check_against_brute_force(name, tris, a.wide_bvh(), &prim);
     }
 }

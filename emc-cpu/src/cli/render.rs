@@ -187,7 +187,8 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         scene.name,
         tris.len(),
         if r { "on" } else { "off" },
-        args.leaf_size.unwrap_or(crate::trace::api::DEFAULT_LEAF_SIZE),
+        args.leaf_size
+            .unwrap_or(crate::trace::api::DEFAULT_LEAF_SIZE),
         args.threads
     );
     println!(
@@ -238,7 +239,8 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
             )
         });
         let f = std::fs::File::create(path).with_context(|| format!("creating {path}"))?;
-        img.write_png(f).with_context(|| format!("writing {path}"))?;
+        img.write_png(f)
+            .with_context(|| format!("writing {path}"))?;
         println!("wrote {path} ({shading:?} shading)");
     }
     Ok(())

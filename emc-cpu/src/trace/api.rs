@@ -135,7 +135,9 @@ impl Accel {
     /// Build over a triangle list (triangle id = position in `tris`).
     pub fn from_triangles(tris: Vec<[Vec3; 3]>, opts: &BuildOptions) -> Result<Accel, TraceError> {
         if opts.threads == Some(0) {
-            return Err(TraceError::Build("the thread count must be at least 1".into()));
+            return Err(TraceError::Build(
+                "the thread count must be at least 1".into(),
+            ));
         }
         let pool = match opts.threads {
             Some(n) => Some(Arc::new(
@@ -220,10 +222,14 @@ pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceE
     let (builder, layout, restructure) = opts.resolve();
     let max_leaf = opts.leaf_size.unwrap_or(DEFAULT_LEAF_SIZE);
     if max_leaf == 0 {
-        return Err(TraceError::Build("the maximum leaf size must be at least 1".into()));
+        return Err(TraceError::Build(
+            "the maximum leaf size must be at least 1".into(),
+        ));
     }
     if opts.threads == Some(0) {
-        return Err(TraceError::Build("the thread count must be at least 1".into()));
+        return Err(TraceError::Build(
+            "the thread count must be at least 1".into(),
+        ));
     }
     let collapse = CollapseParams {
         max_leaf,

@@ -7,7 +7,7 @@
 use core::mem::MaybeUninit;
 
 use crate::trace::intersect::{better, slab_test, triangle_test, Hit, PreRay, Ray};
-use crate::trace::wide::{WideBvh, WideNode, EMPTY, LAST, LEAF, STACK_CAPACITY, WIDTH};
+use crate::trace::wide::{TriPacket, WideBvh, WideNode, EMPTY, LEAF, STACK_CAPACITY, WIDTH};
 
 /// Slack of distance culling: a node is skipped when its entry distance exceeds
 /// `best · CULL_SLACK` (or `tfar · CULL_SLACK`). A box entry and a triangle distance are
@@ -89,9 +89,9 @@ pub fn node_test_simd(node: &WideNode, r: &PreRay, tfar: f32) -> LaneHits {
 mod sse {
     use core::arch::x86_64::*;
 
-    use super::LaneHits;
+    use super::{LaneHits, PacketHits};
     use crate::trace::intersect::{PreRay, FAR_WIDEN};
-    use crate::trace::wide::WideNode;
+    use crate::trace::wide::{TriPacket, WideNode};
 
     /// Ray constants broadcast to all lanes.
     #[derive(Clone, Copy, Debug)]
@@ -102,6 +102,8 @@ mod sse {
         near: [usize; 3],
         tnear: __m128,
         widen: __m128,
+        k: [usize; 3],
+        shear: [__m128; 3],
     }
 
     impl SseRay {
@@ -116,6 +118,8 @@ mod sse {
                     near,
                     tnear: _mm_set1_ps(r.tnear),
                     widen: _mm_set1_ps(FAR_WIDEN),
+                    k: r.k,
+                    shear: r.shear.map(|x| _mm_set1_ps(x)),
                 }
             }
         }
@@ -150,7 +154,91 @@ mod sse {
                 (mask, dist)
             }
         }
+
+        /// The watertight test of four triangles, lane for lane the same operations as
+        /// `triangle_test`. Returns the lanes that hit in `[tnear, tmax]`, the lanes with a
+        /// zero edge function (to be redone by the scalar test, which falls back to `f64`),
+        /// and per lane `t`, the two edge functions of vertices 1 and 2, and `det`.
+        #[inline(always)]
+        pub fn packet(&self, p: &TriPacket, tmax: f32) -> PacketHits {
+            let [kx, ky, kz] = self.k;
+            // SAFETY: SSE is part of the x86-64 baseline. Every load reads one `[f32; 4]` row
+            // of a 16-byte aligned packet; the unaligned stores write 4-float local arrays.
+            unsafe {
+                let rel = |j: usize, a: usize| {
+                    _mm_sub_ps(_mm_load_ps(p.v[3 * j + a].as_ptr()), self.org[a])
+                };
+                let (a_x, a_y, a_z) = (rel(0, kx), rel(0, ky), rel(0, kz));
+                let (b_x, b_y, b_z) = (rel(1, kx), rel(1, ky), rel(1, kz));
+                let (c_x, c_y, c_z) = (rel(2, kx), rel(2, ky), rel(2, kz));
+                let [sx, sy, sz] = self.shear;
+                let ax = _mm_sub_ps(a_x, _mm_mul_ps(sx, a_z));
+                let ay = _mm_sub_ps(a_y, _mm_mul_ps(sy, a_z));
+                let bx = _mm_sub_ps(b_x, _mm_mul_ps(sx, b_z));
+                let by = _mm_sub_ps(b_y, _mm_mul_ps(sy, b_z));
+                let cx = _mm_sub_ps(c_x, _mm_mul_ps(sx, c_z));
+                let cy = _mm_sub_ps(c_y, _mm_mul_ps(sy, c_z));
+                let u = _mm_sub_ps(_mm_mul_ps(cx, by), _mm_mul_ps(cy, bx));
+                let v = _mm_sub_ps(_mm_mul_ps(ax, cy), _mm_mul_ps(ay, cx));
+                let w = _mm_sub_ps(_mm_mul_ps(bx, ay), _mm_mul_ps(by, ax));
+                let zero = _mm_setzero_ps();
+                let any_zero = _mm_or_ps(
+                    _mm_or_ps(_mm_cmpeq_ps(u, zero), _mm_cmpeq_ps(v, zero)),
+                    _mm_cmpeq_ps(w, zero),
+                );
+                let neg = _mm_or_ps(
+                    _mm_or_ps(_mm_cmplt_ps(u, zero), _mm_cmplt_ps(v, zero)),
+                    _mm_cmplt_ps(w, zero),
+                );
+                let pos = _mm_or_ps(
+                    _mm_or_ps(_mm_cmpgt_ps(u, zero), _mm_cmpgt_ps(v, zero)),
+                    _mm_cmpgt_ps(w, zero),
+                );
+                let det = _mm_add_ps(_mm_add_ps(u, v), w);
+                let az = _mm_mul_ps(sz, a_z);
+                let bz = _mm_mul_ps(sz, b_z);
+                let cz = _mm_mul_ps(sz, c_z);
+                let tt = _mm_add_ps(
+                    _mm_add_ps(_mm_mul_ps(u, az), _mm_mul_ps(v, bz)),
+                    _mm_mul_ps(w, cz),
+                );
+                let t = _mm_div_ps(tt, det);
+                let in_range = _mm_and_ps(
+                    _mm_cmpge_ps(t, self.tnear),
+                    _mm_cmple_ps(t, _mm_set1_ps(tmax)),
+                );
+                let ok = _mm_andnot_ps(
+                    _mm_or_ps(any_zero, _mm_and_ps(neg, pos)),
+                    _mm_and_ps(in_range, _mm_cmpneq_ps(det, zero)),
+                );
+                let mut out = PacketHits {
+                    hit: _mm_movemask_ps(ok) as u32,
+                    redo: _mm_movemask_ps(any_zero) as u32,
+                    t: [0.0; 4],
+                    v: [0.0; 4],
+                    w: [0.0; 4],
+                    det: [0.0; 4],
+                };
+                _mm_storeu_ps(out.t.as_mut_ptr(), t);
+                _mm_storeu_ps(out.v.as_mut_ptr(), v);
+                _mm_storeu_ps(out.w.as_mut_ptr(), w);
+                _mm_storeu_ps(out.det.as_mut_ptr(), det);
+                out
+            }
+        }
     }
+}
+
+/// The SIMD triangle test's answer for one packet (see `SseRay::packet`).
+#[derive(Clone, Copy, Debug)]
+#[cfg_attr(not(target_arch = "x86_64"), allow(dead_code))]
+struct PacketHits {
+    hit: u32,
+    redo: u32,
+    t: [f32; WIDTH],
+    v: [f32; WIDTH],
+    w: [f32; WIDTH],
+    det: [f32; WIDTH],
 }
 
 /// The node test of one ray, chosen once per ray.
@@ -179,6 +267,45 @@ impl Tester {
             Tester::Scalar => node_test_scalar(node, r, tfar),
             #[cfg(target_arch = "x86_64")]
             Tester::Sse(s) => s.test(node, tfar),
+        }
+    }
+
+    /// Call `f(t, u, v, id)` for every triangle of packet `p` hit in `[tnear, tmax]`, in
+    /// lane order; the same hits, bit for bit, for both testers.
+    #[inline(always)]
+    fn packet(
+        &self,
+        r: &PreRay,
+        p: &TriPacket,
+        tmax: f32,
+        mut f: impl FnMut(f32, f32, f32, u32),
+    ) {
+        let real = (1u32 << p.count) - 1;
+        match self {
+            Tester::Scalar => {
+                for lane in 0..p.count as usize {
+                    if let Some((t, u, v)) = triangle_test(r, &p.lane(lane), tmax) {
+                        f(t, u, v, p.id[lane]);
+                    }
+                }
+            }
+            #[cfg(target_arch = "x86_64")]
+            Tester::Sse(s) => {
+                let h = s.packet(p, tmax);
+                let mut m = (h.hit | h.redo) & real;
+                while m != 0 {
+                    let lane = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    if h.redo & (1 << lane) != 0 {
+                        if let Some((t, u, v)) = triangle_test(r, &p.lane(lane), tmax) {
+                            f(t, u, v, p.id[lane]);
+                        }
+                    } else {
+                        let inv_det = 1.0 / h.det[lane];
+                        f(h.t[lane], h.v[lane] * inv_det, h.w[lane] * inv_det, p.id[lane]);
+                    }
+                }
+            }
         }
     }
 }
@@ -277,24 +404,23 @@ pub fn closest<const STATS: bool>(
             continue;
         }
         if code & LEAF != 0 {
-            let mut slot = (code & !LEAF) as usize;
+            let mut pi = (code & !LEAF) as usize;
             loop {
+                let p = &bvh.packets[pi];
                 if STATS {
-                    stats.tri_tests += 1;
+                    stats.tri_tests += p.count as u64;
                 }
-                let id = bvh.ids[slot];
-                let prim = id & !LAST;
-                if let Some((t, u, v)) = triangle_test(&r, &bvh.tris[slot], best.t) {
+                tester.packet(&r, p, best.t, |t, u, v, prim| {
                     if !found || better(t, prim, best.t, best.prim) {
                         best = Hit { t, prim, u, v };
-                        cull = slack(t);
                         found = true;
                     }
-                }
-                if id & LAST != 0 {
+                });
+                cull = slack(best.t);
+                if p.last != 0 {
                     break;
                 }
-                slot += 1;
+                pi += 1;
             }
         } else {
             let node = &bvh.nodes[code as usize];
@@ -329,18 +455,21 @@ pub fn occluded<const STATS: bool>(
     stack.push((0, r.tnear));
     while let Some((code, _)) = stack.pop() {
         if code & LEAF != 0 {
-            let mut slot = (code & !LEAF) as usize;
+            let mut pi = (code & !LEAF) as usize;
             loop {
+                let p = &bvh.packets[pi];
                 if STATS {
-                    stats.tri_tests += 1;
+                    stats.tri_tests += p.count as u64;
                 }
-                if triangle_test(&r, &bvh.tris[slot], r.tfar).is_some() {
+                let mut hit = false;
+                tester.packet(&r, p, r.tfar, |_, _, _, _| hit = true);
+                if hit {
                     return true;
                 }
-                if bvh.ids[slot] & LAST != 0 {
+                if p.last != 0 {
                     break;
                 }
-                slot += 1;
+                pi += 1;
             }
         } else {
             let node = &bvh.nodes[code as usize];

@@ -22,10 +22,42 @@ pub const STACK_CAPACITY: usize = (WIDTH - 1) * (MAX_DEPTH + 1) + 1;
 
 /// Child code of an unused slot.
 pub const EMPTY: u32 = u32::MAX;
-/// Child code flag of a leaf; the low 31 bits are the leaf's first triangle slot.
+/// Child code flag of a leaf; the low 31 bits are the leaf's first triangle packet.
 pub const LEAF: u32 = 1 << 31;
-/// Flag on [`WideBvh::ids`] marking the last triangle of a leaf.
-pub const LAST: u32 = 1 << 31;
+/// Largest triangle id (ids must stay below the leaf flag bit).
+pub const MAX_TRIANGLES: usize = (1 << 31) - 1;
+
+/// Up to four triangles of one leaf, SoA, for the SIMD triangle test: 176 bytes.
+///
+/// ```text
+///   v[3j + a][lane] : coordinate a (x, y, z) of vertex j (0, 1, 2) of triangle `lane`
+///   id[lane]        : triangle id; unused lanes repeat the last real triangle (same answer)
+///   count           : real triangles (1..=4)     last: 1 on the last packet of the leaf
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(16))]
+pub struct TriPacket {
+    /// Vertex coordinates, see the type docs.
+    pub v: [[f32; WIDTH]; 9],
+    /// Triangle ids.
+    pub id: [u32; WIDTH],
+    /// Real triangles in this packet.
+    pub count: u32,
+    /// 1 when this is the leaf's last packet.
+    pub last: u32,
+    _pad: [u32; 2],
+}
+
+const _: () = assert!(core::mem::size_of::<TriPacket>() == 176);
+
+impl TriPacket {
+    /// The vertices of lane `lane` as the scalar triangle test takes them.
+    #[inline(always)]
+    pub fn lane(&self, lane: usize) -> [[f32; 3]; 3] {
+        let v = &self.v;
+        core::array::from_fn(|j| [v[3 * j][lane], v[3 * j + 1][lane], v[3 * j + 2][lane]])
+    }
+}
 
 /// One 4-wide node: 128 bytes, two cache lines, 64-byte aligned.
 ///
@@ -86,10 +118,10 @@ impl WideNode {
 pub struct WideBvh {
     /// Nodes in depth-first pre-order; node 0 is the root.
     pub nodes: Vec<WideNode>,
-    /// Triangle vertices in leaf order (a leaf's triangles are contiguous).
-    pub tris: Vec<[[f32; 3]; 3]>,
-    /// Triangle ids in leaf order; [`LAST`] marks the last triangle of each leaf.
-    pub ids: Vec<u32>,
+    /// Triangle packets in leaf order (a leaf's packets are contiguous).
+    pub packets: Vec<TriPacket>,
+    /// Number of triangles.
+    pub triangles: usize,
     /// Depth of the wide tree (root alone: 0); at most [`MAX_DEPTH`].
     pub depth: usize,
     /// Number of leaves.
@@ -108,7 +140,7 @@ impl WideBvh {
         if tris.is_empty() {
             return Err(TraceError::NoTriangles);
         }
-        if tris.len() >= LAST as usize {
+        if tris.len() > MAX_TRIANGLES {
             return Err(TraceError::TooManyTriangles(tris.len()));
         }
         let aabbs: Vec<Aabb> = tris
@@ -125,8 +157,8 @@ impl WideBvh {
         };
         let mut out = WideBvh {
             nodes: Vec::with_capacity(bvh.nodes.len() / 2 + 1),
-            tris: Vec::with_capacity(tris.len()),
-            ids: Vec::with_capacity(tris.len()),
+            packets: Vec::with_capacity(tris.len() / 2),
+            triangles: tris.len(),
             depth: 0,
             leaves: 0,
         };
@@ -194,14 +226,31 @@ impl WideBvh {
 
     fn emit_leaf(&mut self, bvh: &Bvh, n: u32, tris: &[[Vec3; 3]]) -> u32 {
         let leaf = &bvh.nodes[n as usize];
-        let first = self.tris.len() as u32;
-        let prims = &bvh.prim_indices[leaf.first() as usize..(leaf.first() + leaf.count()) as usize];
-        for (j, &p) in prims.iter().enumerate() {
-            let t = &tris[p as usize];
-            self.tris
-                .push([t[0].to_array(), t[1].to_array(), t[2].to_array()]);
-            let last = if j + 1 == prims.len() { LAST } else { 0 };
-            self.ids.push(p | last);
+        let first = self.packets.len() as u32;
+        let prims =
+            &bvh.prim_indices[leaf.first() as usize..(leaf.first() + leaf.count()) as usize];
+        let chunks = prims.chunks(WIDTH);
+        let k = chunks.len();
+        for (c, chunk) in chunks.enumerate() {
+            let mut p = TriPacket {
+                v: [[0.0; WIDTH]; 9],
+                id: [0; WIDTH],
+                count: chunk.len() as u32,
+                last: (c + 1 == k) as u32,
+                _pad: [0; 2],
+            };
+            for lane in 0..WIDTH {
+                let id = chunk[lane.min(chunk.len() - 1)];
+                let t = &tris[id as usize];
+                for j in 0..3 {
+                    let a = t[j].to_array();
+                    for (ax, &x) in a.iter().enumerate() {
+                        p.v[3 * j + ax][lane] = x;
+                    }
+                }
+                p.id[lane] = id;
+            }
+            self.packets.push(p);
         }
         self.leaves += 1;
         LEAF | first
@@ -209,12 +258,12 @@ impl WideBvh {
 
     /// Number of triangles.
     pub fn triangle_count(&self) -> usize {
-        self.tris.len()
+        self.triangles
     }
 
     /// Bytes of nodes and triangle data.
     pub fn memory_bytes(&self) -> usize {
         self.nodes.len() * core::mem::size_of::<WideNode>()
-            + self.tris.len() * (36 + 4)
+            + self.packets.len() * core::mem::size_of::<TriPacket>()
     }
 }
