@@ -55,6 +55,8 @@ pub fn expand_slice(exp: &Expander, q: &[[u64; 4]], out: &mut [u64]) -> Result<(
 
 /// The streaming baseline of the pipeline: reads every byte of every box (24 B) and writes one
 /// `u64` (8 B) per box, with one xor per word: the memory ceiling an encoder is compared to.
+/// Never inlined, so that profilers (callgrind `--toggle-collect`) find it by name.
+#[inline(never)]
 pub fn stream_baseline(boxes: &[Aabb], out: &mut [u64]) -> Result<(), Error> {
     if boxes.len() != out.len() {
         return Err(Error::LengthMismatch(boxes.len(), out.len()));
