@@ -7,14 +7,16 @@ use glam::Vec3;
 use proptest::prelude::*;
 
 /// The scene extents adaptive layouts are resolved on: cube, flat slab, long bar, the
-/// reference table's 100×10×1, a flat scene with a zero axis, and a needle.
-pub const EXTENTS: [[f64; 3]; 6] = [
+/// reference table's 100×10×1, a flat scene with a zero axis, a needle, and a line (one axis
+/// owns every spatial bit: 58 or 64 bits in one channel).
+pub const EXTENTS: [[f64; 3]; 7] = [
     [1.0, 1.0, 1.0],
     [4.0, 4.0, 1.0],
     [16.0, 1.0, 1.0],
     [100.0, 10.0, 1.0],
     [1.0, 1.0, 0.0],
     [1e6, 1.0, 1.0],
+    [0.0, 3.0, 0.0],
 ];
 
 /// Custom patterns beyond the standard names: regular ones (magic applies), irregular ones,
