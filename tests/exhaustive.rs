@@ -2,7 +2,8 @@
 //! reference over every value of every channel, every code of the ≤ 32-bit layouts through
 //! decode → encode, and every `f32` on one axis of three frames (monotone, clamped, batch = scalar).
 //!
-//! Opt-in full `f32` sweep (all 2^32 patterns × 3 frames, several minutes on 2 cores):
+//! Opt-in full `f32` sweep (all 2^32 patterns × 2 boxes × 3 frames; about 30 CPU-minutes,
+//! 15 minutes on 2 idle cores):
 //!     cargo test --release -p emc-tests --test exhaustive -- --ignored f32_sweep_full
 
 // Axis and channel loops index several per-axis arrays at once.
@@ -378,7 +379,7 @@ fn f32_sweep_strided() {
 
 /// All 2^32 `f32` patterns on each of the three frames (opt-in, see the file header).
 #[test]
-#[ignore = "minutes on 2 cores; run with --ignored f32_sweep_full"]
+#[ignore = "about 15 minutes on 2 cores; run with --ignored f32_sweep_full"]
 fn f32_sweep_full() {
     f32_sweep(1);
 }
