@@ -493,9 +493,9 @@ impl Pass<'_> {
                 costs[bj] = costs[last];
                 counts[bj] = counts[last];
                 refs[bj] = refs[last];
-                for o in 0..live {
-                    dist[bj][o] = dist[last][o];
-                    dist[o][bj] = dist[o][last];
+                dist[bj] = dist[last];
+                for row in dist.iter_mut().take(live) {
+                    row[bj] = row[last];
                 }
             }
             live = last;
