@@ -273,13 +273,7 @@ impl Tester {
     /// Call `f(t, u, v, id)` for every triangle of packet `p` hit in `[tnear, tmax]`, in
     /// lane order; the same hits, bit for bit, for both testers.
     #[inline(always)]
-    fn packet(
-        &self,
-        r: &PreRay,
-        p: &TriPacket,
-        tmax: f32,
-        mut f: impl FnMut(f32, f32, f32, u32),
-    ) {
+    fn packet(&self, r: &PreRay, p: &TriPacket, tmax: f32, mut f: impl FnMut(f32, f32, f32, u32)) {
         let real = (1u32 << p.count) - 1;
         match self {
             Tester::Scalar => {
@@ -302,7 +296,12 @@ impl Tester {
                         }
                     } else {
                         let inv_det = 1.0 / h.det[lane];
-                        f(h.t[lane], h.v[lane] * inv_det, h.w[lane] * inv_det, p.id[lane]);
+                        f(
+                            h.t[lane],
+                            h.v[lane] * inv_det,
+                            h.w[lane] * inv_det,
+                            p.id[lane],
+                        );
                     }
                 }
             }
@@ -476,8 +475,14 @@ pub fn occluded<const STATS: bool>(
             if STATS {
                 stats.node_tests += 1;
             }
-            let hits = tester.test(node, &r, cull);
-            push_ordered(&mut stack, node, hits);
+            let (mut m, _) = tester.test(node, &r, cull);
+            // Any hit ends the search, so the order of visits only matters for speed; the
+            // lanes go on the stack as they come.
+            while m != 0 {
+                let lane = m.trailing_zeros() as usize;
+                m &= m - 1;
+                stack.push((node.child[lane], 0.0));
+            }
         }
     }
     false
