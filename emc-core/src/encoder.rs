@@ -48,6 +48,18 @@ impl Encoder {
                 Expander::new(Backend::Pdep, &layout),
                 "pdep: BMI2 present and pdep is a fast single instruction on this CPU",
             )
+        } else if info.avx2
+            && crate::expand::magic::Magic::new(&layout).is_some()
+            && layout.bit_counts().iter().all(|&b| b <= 31)
+        {
+            // Measured (Zen 4, pdep forced off, 1M boxes, AVX2 quantise): morton63 3.3 ns/code
+            // with the u64x4 spreads against 5.2 with byte tables; morton30 3.0 against 3.2;
+            // emc64-sort 4.5 against 5.6.
+            (
+                Expander::new(Backend::Magic, &layout),
+                "magic: pdep is absent or microcoded here and the pattern is regular; AVX2 \
+                 u64x4 shift/mask spreads beat byte tables after the AVX2 quantize",
+            )
         } else if info.bmi2 {
             (
                 Expander::new(Backend::Table, &layout),

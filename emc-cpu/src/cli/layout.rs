@@ -27,7 +27,7 @@ pub struct LayoutArgs {
     #[arg(long, default_value_t = DEFAULT_PRIMS)]
     pub prims: usize,
     /// Layouts to report (repeatable); default: morton30, morton63, emc64-sort, emc64-var,
-    /// emc32-var, emc64-var-nosize. Also custom:PATTERN[:linear].
+    /// emc32-var, emc64-var-nosize. Also `custom:PATTERN[:linear]`.
     #[arg(long = "layout")]
     pub layouts: Vec<String>,
     /// Threads for loading the scene and for an extra parallel-encode row (wall clock); the
@@ -175,6 +175,9 @@ fn report(args: &LayoutArgs, specs: &[LayoutSpec], rounds: usize) -> anyhow::Res
             for b in Backend::ALL {
                 match Encoder::with_backend(layout, &frame, b) {
                     Ok(e) => encoders.push((b, e)),
+                    Err(_) if b == Backend::Magic => {
+                        unavailable.push(format!("{b}: n/a (the pattern is not regular)"))
+                    }
                     Err(e) => unavailable.push(format!("{b}: n/a ({e})")),
                 }
             }
