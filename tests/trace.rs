@@ -723,9 +723,12 @@ const PROTOCOL: [(&str, usize, u64, u64, u64); 8] = [
     ("stanford-dragon", 871_414, 237_361, 949_444, 137_129),
 ];
 
-fn shared_scene(name: &str) -> Option<&'static (Vec<[Vec3; 3]>, Accel)> {
-    static CACHE: OnceLock<std::sync::Mutex<Vec<(String, &'static (Vec<[Vec3; 3]>, Accel))>>> =
-        OnceLock::new();
+/// A loaded shared scene: its triangles and their acceleration structure.
+type Loaded = (Vec<[Vec3; 3]>, Accel);
+
+/// Load (once per test binary) a shared scene with the `quality` preset.
+fn shared_scene(name: &str) -> Option<&'static Loaded> {
+    static CACHE: OnceLock<std::sync::Mutex<Vec<(String, &'static Loaded)>>> = OnceLock::new();
     scene::shared_scene_path(name)?;
     let cache = CACHE.get_or_init(Default::default);
     let mut c = cache.lock().unwrap();
@@ -735,7 +738,7 @@ fn shared_scene(name: &str) -> Option<&'static (Vec<[Vec3; 3]>, Accel)> {
     let s = scene::load(name).expect("shared scene loads");
     let tris = triangles(&s);
     let a = Accel::from_triangles(tris.clone(), &BuildOptions::preset(Preset::Quality)).unwrap();
-    let v: &'static (Vec<[Vec3; 3]>, Accel) = Box::leak(Box::new((tris, a)));
+    let v: &'static Loaded = Box::leak(Box::new((tris, a)));
     c.push((name.to_string(), v));
     Some(v)
 }

@@ -242,8 +242,8 @@ impl WideBvh {
             for lane in 0..WIDTH {
                 let id = chunk[lane.min(chunk.len() - 1)];
                 let t = &tris[id as usize];
-                for j in 0..3 {
-                    let a = t[j].to_array();
+                for (j, vert) in t.iter().enumerate() {
+                    let a = vert.to_array();
                     for (ax, &x) in a.iter().enumerate() {
                         p.v[3 * j + ax][lane] = x;
                     }
