@@ -528,6 +528,13 @@ impl Unit {
     pub fn codes(&self, boxes: &[Aabb], out: &mut Vec<u64>) {
         out.clear();
         out.resize(boxes.len(), 0);
+        self.codes_into(boxes, out);
+    }
+
+    /// [`Unit::codes`] into a slice of the same length as `boxes` (extra slots are left).
+    pub fn codes_into(&self, boxes: &[Aabb], out: &mut [u64]) {
+        let len = boxes.len().min(out.len());
+        let out = &mut out[..len];
         let generic = !matches!(
             (&self.regs.size, &self.regs.net),
             (

@@ -19,7 +19,7 @@
 use std::collections::VecDeque;
 
 use crate::error::HwError;
-use crate::memory::{Flow, Port, AABB_BYTES};
+use crate::memory::{BusTime, Flow, Port, AABB_BYTES};
 use crate::stats::Stats;
 
 /// An issued transaction: first primitive, count, and arrival (reads) or issue cycle (writes).
@@ -30,14 +30,14 @@ struct Span {
     cycle: u64,
 }
 
-/// The cycle at which `item` is covered by the front span (popping spans it has passed).
+/// The cycle of the span covering `item` and the end of that span (popping passed spans).
 #[inline(always)]
-fn span_cycle(q: &mut VecDeque<Span>, item: u64) -> u64 {
+fn span(q: &mut VecDeque<Span>, item: u64) -> (u64, u64) {
     while let Some(s) = q.front() {
         if s.first + s.count <= item {
             q.pop_front();
         } else {
-            return s.cycle;
+            return (s.cycle, s.first + s.count);
         }
     }
     unreachable!("a span covering every looked-up primitive has been issued")
@@ -65,48 +65,54 @@ pub fn timing(flow: &Flow, port: &Port) -> Result<Stats, HwError> {
     const NEVER: u64 = u64::MAX;
     let (mut a, mut requested, mut written) = (0u64, 0u64, 0u64);
     let mut prev = 0u64;
-    let mut bus_free = 0u64;
+    let mut bus_free = BusTime::default();
+    // Durations of the full bursts (the last burst of each kind may be shorter).
+    let full_write = port.duration(flow.write_burst * flow.code_bytes);
+    let full_read = port.duration(flow.read_burst * AABB_BYTES);
     let mut next_issue = 0u64;
     loop {
-        // Entry times of every primitive whose data and credit are already scheduled.
+        // Entry times of every primitive whose data and credit are already scheduled, in runs
+        // that share one read burst and one credit-releasing write burst.
         while a < requested {
-            let cr = if a >= flow.out_cap {
+            let (arr, rend) = span(&mut reads, a);
+            let (cr, cend) = if a >= flow.out_cap {
                 let i = a - flow.out_cap;
                 if i >= written {
                     break;
                 }
-                span_cycle(&mut writes, i)
+                let (c, e) = span(&mut writes, i);
+                (c, e + flow.out_cap)
             } else {
-                0
+                (0, flow.out_cap)
             };
-            let arr = span_cycle(&mut reads, a);
-            let lane = if a >= flow.lanes {
-                acc[((a - flow.lanes) & mask) as usize] + flow.ii
-            } else {
-                0
-            };
-            let structural = prev.max(lane);
-            let t = structural.max(arr).max(cr);
-            if t > structural {
-                if arr >= cr {
-                    st.stall_input += t - structural;
-                } else {
-                    st.stall_output += t - structural;
-                }
-            }
-            st.in_fifo_sum += t - arr;
+            let end = rend.min(cend).min(requested);
+            let bound = arr.max(cr);
+            let input = (arr >= cr) as u64;
             if a == 0 {
-                st.first_accept = t;
+                st.first_accept = bound;
             }
-            acc[(a & mask) as usize] = t;
-            prev = t;
-            a += 1;
+            for i in a..end {
+                let lane = if i >= flow.lanes {
+                    acc[((i - flow.lanes) & mask) as usize] + flow.ii
+                } else {
+                    0
+                };
+                let structural = prev.max(lane);
+                let t = structural.max(bound);
+                let wait = t - structural;
+                st.stall_input += wait * input;
+                st.stall_output += wait * (1 - input);
+                st.in_fifo_sum += t - arr;
+                acc[(i & mask) as usize] = t;
+                prev = t;
+            }
+            a = end;
         }
         if written == n {
             break;
         }
         // The next transaction.
-        let ready = port.ready_cycle(bus_free).max(next_issue);
+        let ready = bus_free.cycle.max(next_issue);
         let wcnt = flow.write_burst.min(n - written);
         let wlast = written + wcnt - 1;
         let w = if wlast < a {
@@ -131,7 +137,12 @@ pub fn timing(flow: &Flow, port: &Port) -> Result<Stats, HwError> {
         let u = ready.max(w.min(r));
         if w <= u {
             let bytes = wcnt * flow.code_bytes;
-            bus_free = port.transfer(bus_free, u, bytes);
+            let d = if wcnt == flow.write_burst {
+                full_write
+            } else {
+                port.duration(bytes)
+            };
+            bus_free = port.transfer_at(bus_free, u, d);
             st.bus_ticks += bytes * port.ticks_per_byte;
             for i in written..written + wcnt {
                 st.out_fifo_sum += u - (acc[(i & mask) as usize] + flow.depth);
@@ -146,12 +157,17 @@ pub fn timing(flow: &Flow, port: &Port) -> Result<Stats, HwError> {
             st.bytes_written += bytes;
         } else {
             let bytes = rcnt * AABB_BYTES;
-            bus_free = port.transfer(bus_free, u, bytes);
+            let d = if rcnt == flow.read_burst {
+                full_read
+            } else {
+                port.duration(bytes)
+            };
+            bus_free = port.transfer_at(bus_free, u, d);
             st.bus_ticks += bytes * port.ticks_per_byte;
             reads.push_back(Span {
                 first: requested,
                 count: rcnt,
-                cycle: port.arrival(bus_free),
+                cycle: port.ceil(bus_free) + port.latency,
             });
             requested += rcnt;
             st.reads += 1;
@@ -160,6 +176,6 @@ pub fn timing(flow: &Flow, port: &Port) -> Result<Stats, HwError> {
         next_issue = u + 1;
     }
     st.last_accept = prev;
-    st.cycles = port.end_cycle(bus_free);
+    st.cycles = port.ceil(bus_free);
     Ok(st)
 }

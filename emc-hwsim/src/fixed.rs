@@ -28,21 +28,23 @@ pub const POS_INF_BITS: u64 = 0x7ff0_0000_0000_0000;
 /// routing word (the offset is added to the shift amount), so packing costs no extra shifter.
 #[inline(always)]
 pub fn float_to_fixed(v: f64, n: u32) -> u64 {
+    // Written without early exits so that the host compiles it to selects, like the hardware.
     let b = v.to_bits();
-    let e = (b >> 52) & EXP_MASK;
-    let is_nan = e == EXP_MASK && (b & FRAC) != 0;
-    if b & SIGN != 0 || is_nan || e < 1023 {
-        return 0;
-    }
-    let k = (e - 1023) as u32;
-    if k >= n {
-        return if n >= 64 { u64::MAX } else { (1u64 << n) - 1 };
-    }
+    let k = ((b >> 52) & EXP_MASK) as i64 - 1023;
     let m = (b & FRAC) | (1 << 52);
-    if k >= 52 {
-        m << (k - 52)
+    // k < 0 shifts the 53-bit significand out entirely (a shift of 63 leaves 0).
+    let shifted = if k <= 52 {
+        m >> (52 - k).min(63)
     } else {
-        m >> (52 - k)
+        m << (k - 52).min(63)
+    };
+    let max = u64::MAX.checked_shr(64 - n).unwrap_or(0);
+    let sat = if k >= n as i64 { max } else { shifted };
+    let zero = (b & SIGN != 0) | ((b & !SIGN) > POS_INF_BITS);
+    if zero {
+        0
+    } else {
+        sat
     }
 }
 

@@ -100,9 +100,20 @@ impl Unit {
         let flow = self.flow(boxes.len() as u64);
         match mode {
             Mode::Fast => {
-                let stats = fast::timing(&flow, &port)?;
-                let mut codes = Vec::new();
-                self.codes(boxes, &mut codes);
+                // Timing and the codes are independent (timing never depends on data): the
+                // host computes them on separate threads, the codes in chunks.
+                let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+                let chunk = boxes.len().div_ceil(threads).max(datapath::BLOCK * 256);
+                let mut codes = vec![0u64; boxes.len()];
+                let stats = std::thread::scope(|s| {
+                    let timing = s.spawn(|| fast::timing(&flow, &port));
+                    for (o, b) in codes.chunks_mut(chunk).zip(boxes.chunks(chunk)) {
+                        s.spawn(move || self.codes_into(b, o));
+                    }
+                    timing
+                        .join()
+                        .unwrap_or_else(|e| std::panic::resume_unwind(e))
+                })?;
                 Ok(Run {
                     codes,
                     stats,

@@ -98,6 +98,50 @@ impl Port {
     }
 }
 
+/// A point on the bus timeline as whole cycles plus a fraction in ticks (`frac < p`): the
+/// fast mode's division-free form of tick arithmetic.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BusTime {
+    /// Whole cycles.
+    pub cycle: u64,
+    /// Remaining ticks (less than the ticks per cycle).
+    pub frac: u64,
+}
+
+impl Port {
+    /// The duration of a transfer of `bytes`, as whole cycles and ticks.
+    pub fn duration(&self, bytes: u64) -> BusTime {
+        let t = bytes * self.ticks_per_byte;
+        BusTime {
+            cycle: t / self.ticks_per_cycle,
+            frac: t % self.ticks_per_cycle,
+        }
+    }
+
+    /// [`Port::transfer`] on [`BusTime`]: issue at cycle `t` on a bus free at `free`.
+    #[inline(always)]
+    pub fn transfer_at(&self, free: BusTime, t: u64, d: BusTime) -> BusTime {
+        let start = if free.cycle >= t {
+            free
+        } else {
+            BusTime { cycle: t, frac: 0 }
+        };
+        let mut frac = start.frac + d.frac;
+        let mut cycle = start.cycle + d.cycle;
+        if frac >= self.ticks_per_cycle {
+            frac -= self.ticks_per_cycle;
+            cycle += 1;
+        }
+        BusTime { cycle, frac }
+    }
+
+    /// The cycle count at a bus time (rounded up).
+    #[inline(always)]
+    pub fn ceil(&self, x: BusTime) -> u64 {
+        x.cycle + (x.frac > 0) as u64
+    }
+}
+
 /// The data-flow constants of a run (what timing depends on: never the data values).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Flow {
