@@ -558,7 +558,13 @@ fn check_reference_row(row: &RefRow) {
     let scene = load(path.to_str().unwrap()).unwrap();
     let aabbs = scene.aabbs();
     println!("{} ({} triangles)", row.scene, aabbs.len());
-    let run = |layout: LayoutSpec| build(&aabbs, opts(layout, Builder::Lbvh, 2, 8));
+    let run = |layout: LayoutSpec| {
+        let out = build(&aabbs, opts(layout, Builder::Lbvh, 2, 8));
+        if let Err(e) = out.bvh.validate(&aabbs) {
+            panic!("{} {layout}: {e}", row.scene);
+        }
+        out
+    };
 
     let mc = run(LayoutSpec::Morton63);
     within_1pct("MC63", mc.report.sah_headline, row.mc63);
