@@ -23,6 +23,7 @@
 //! Passes repeat `iterations` times with `γ` doubled each time. Since a node's result depends
 //! only on its own subtree, the output does not depend on the number of threads or on timing.
 
+use std::marker::PhantomData;
 use std::sync::atomic::{AtomicU32, Ordering};
 
 use emc_core::Aabb;
@@ -156,7 +157,7 @@ struct Aux {
 /// Restructure `bvh` in place by agglomerative treelet restructuring; `aabbs[p]` is the box of
 /// primitive `p`. The input must pass [`Bvh::validate`] (any leaf size is accepted; the
 /// reference use is one primitive per leaf, before collapse). Leaf boxes are recomputed from
-/// `aabbs` and inner boxes refitted, so the output is tight.
+/// `aabbs` and (when `iterations ≥ 1`) inner boxes refitted, so the output is tight.
 ///
 /// The set of leaves and every leaf's primitives are unchanged; only inner nodes are rewritten,
 /// and only where the subtree cost strictly drops, so the SAH never rises. The result is
@@ -250,21 +251,24 @@ pub fn restructure(bvh: &mut Bvh, aabbs: &[Aabb], cfg: &AtrConfig) -> Result<Atr
 /// whole subtree from then on (all other threads have finished with it, and none will come back:
 /// they only climb above their own finished nodes). Every access goes through the bounds-checked
 /// `get`/`set` below.
-struct SharedSlice<T> {
+struct SharedSlice<'a, T> {
     ptr: *mut T,
     len: usize,
+    /// Ties the pointer to the exclusive borrow it came from.
+    _borrow: PhantomData<&'a mut [T]>,
 }
 
 // SAFETY: a `SharedSlice` is only built from a `&mut [T]` that outlives the pass, and elements
 // are only accessed under the ownership rule above, so no element is accessed by two threads
 // without a happens-before edge (the AcqRel counters provide it).
-unsafe impl<T: Send> Sync for SharedSlice<T> {}
+unsafe impl<T: Send> Sync for SharedSlice<'_, T> {}
 
-impl<T: Copy> SharedSlice<T> {
-    fn new(s: &mut [T]) -> Self {
+impl<'a, T: Copy> SharedSlice<'a, T> {
+    fn new(s: &'a mut [T]) -> Self {
         SharedSlice {
             ptr: s.as_mut_ptr(),
             len: s.len(),
+            _borrow: PhantomData,
         }
     }
 
@@ -295,8 +299,8 @@ impl<T: Copy> SharedSlice<T> {
 
 /// One bottom-up pass over the tree.
 struct Pass<'a> {
-    nodes: SharedSlice<Node>,
-    aux: SharedSlice<Aux>,
+    nodes: SharedSlice<'a, Node>,
+    aux: SharedSlice<'a, Aux>,
     counters: &'a [AtomicU32],
     gamma: u32,
     size: usize,
