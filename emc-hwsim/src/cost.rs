@@ -46,7 +46,7 @@ pub const FLOP_UM2: f64 = 5.98;
 pub const FLOP_PJ: f64 = 0.009;
 /// µm² per estimated transistor at 40 nm (calibration midpoint).
 pub const UM2_PER_T: f64 = 0.158;
-/// Small SRAM buffer area per byte, µm² [D].
+/// Small SRAM buffer area per byte, µm² \[D\].
 pub const SRAM_UM2_PER_B: f64 = 9.0;
 /// 64-bit access to a small SRAM, pJ (Horowitz).
 pub const SRAM_PJ_PER_64B: f64 = 10.0;
@@ -58,33 +58,33 @@ pub const FP32_ADD_PJ: f64 = 0.9;
 pub const FP32_MUL_PJ: f64 = 3.7;
 /// int32 add energy, pJ (Horowitz).
 pub const INT32_ADD_PJ: f64 = 0.1;
-/// Control and handshakes, µm² [E].
+/// Control and handshakes, µm² \[E\].
 pub const CONTROL_UM2: f64 = 2_000.0;
 
-/// fp64 add energy [D]: fp32 energy scaled by the fp64/fp32 area ratio.
+/// fp64 add energy \[D\]: fp32 energy scaled by the fp64/fp32 area ratio.
 pub fn fp64_add_pj() -> f64 {
     FP32_ADD_PJ * FP64_ADD_UM2 / FP32_ADD_UM2
 }
 
-/// fp64 mul energy [D]: fp32 energy scaled by the fp64/fp32 area ratio.
+/// fp64 mul energy \[D\]: fp32 energy scaled by the fp64/fp32 area ratio.
 pub fn fp64_mul_pj() -> f64 {
     FP32_MUL_PJ * FP64_MUL_UM2 / FP32_MUL_UM2
 }
 
-/// Energy of an integer logic block with no direct anchor [D]: the int32 adder's energy per µm².
+/// Energy of an integer logic block with no direct anchor \[D\]: the int32 adder's energy per µm².
 pub fn logic_pj(area_um2: f64) -> f64 {
     INT32_ADD_PJ * area_um2 / INT32_ADD_UM2
 }
 
-/// Pipelined fp64 sqrt or divider [E]: a multiplicative (Goldschmidt) unit ≈ two fp64
+/// Pipelined fp64 sqrt or divider \[E\]: a multiplicative (Goldschmidt) unit ≈ two fp64
 /// multipliers plus a seed table.
 pub const SQRT_DIV_PIPELINED_UM2: f64 = 2.0 * FP64_MUL_UM2;
-/// Iterative radix-4 fp64 sqrt/divider [E]: twice CV32E40P's fp32 7 kGE, 4 T per gate.
+/// Iterative radix-4 fp64 sqrt/divider \[E\]: twice CV32E40P's fp32 7 kGE, 4 T per gate.
 pub const SQRT_DIV_ITERATIVE_UM2: f64 = 14_000.0 * 4.0 * UM2_PER_T;
-/// float→fixed with clamp and 64-bit field shift [D]: two 32-bit barrel shifters and a
+/// float→fixed with clamp and 64-bit field shift \[D\]: two 32-bit barrel shifters and a
 /// 64-bit clamp comparator (2 × 904 T).
 pub const F2FIX64_UM2: f64 = 2.0 * SHIFT32_UM2 + 2.0 * 904.0 * UM2_PER_T;
-/// 63-bit unsigned comparator [D] (the 31-bit one scaled by width).
+/// 63-bit unsigned comparator \[D\] (the 31-bit one scaled by width).
 pub const CMP63_UM2: f64 = 904.0 * 63.0 / 31.0 * UM2_PER_T;
 
 /// One line of a cost breakdown.

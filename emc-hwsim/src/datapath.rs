@@ -568,6 +568,8 @@ impl Unit {
     }
 
     /// One block of the fast datapath: positions, d² and threshold search, routing.
+    // Several parallel per-channel arrays are indexed by the same channel number.
+    #[allow(clippy::needless_range_loop)]
     #[inline(always)]
     fn block(&self, boxes: &[Aabb], out: &mut [u64], cols: &[(u32, u64)], keys: &[u64; 256]) {
         let r = &self.regs;

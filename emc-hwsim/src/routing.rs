@@ -275,8 +275,8 @@ mod tests {
                     let x = rnd() & mask;
                     assert_eq!(net.apply(x), permute_ref(&p, x), "k={k} p={p:?}");
                 }
-                for b in 0..n {
-                    assert_eq!(net.apply(1 << p[b]), 1 << b);
+                for (b, &pb) in p.iter().enumerate() {
+                    assert_eq!(net.apply(1 << pb), 1 << b);
                 }
             }
         }
