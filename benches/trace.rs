@@ -52,7 +52,7 @@ fn workload(spec: &str, prims: Option<usize>) -> Option<Workload> {
 }
 
 fn bench_trace(c: &mut Criterion) {
-    let mut loads = vec![workload("builtin:mixed", Some(200_000))];
+    let mut loads = vec![workload("builtin:city", Some(200_000))];
     if scene::shared_scene_path("sionna-san-francisco").is_some() {
         loads.push(workload("sionna-san-francisco", None));
     } else {

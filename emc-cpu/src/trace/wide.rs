@@ -8,9 +8,9 @@ use glam::Vec3;
 use crate::bvh::Bvh;
 use crate::trace::TraceError;
 
-/// Children per wide node. Four: one SSE register per slab plane. On the target machine
-/// (Zen 1) 256-bit AVX2 operations issue as two 128-bit halves, so an 8-wide node costs as
-/// much per test as two 4-wide ones while visiting more boxes per ray.
+/// Children per wide node. Four: one SSE register per slab plane, and SSE is part of the
+/// x86-64 baseline, so one code path serves every x86-64 CPU without runtime dispatch (other
+/// targets use the bit-identical scalar test). An 8-wide AVX2 layout is not implemented.
 pub const WIDTH: usize = 4;
 
 /// Deepest wide tree the traversal stacks can hold (root at depth 0).
