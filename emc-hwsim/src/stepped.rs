@@ -23,6 +23,16 @@ pub struct SteppedRun {
     pub occupancy: Occupancy,
 }
 
+/// The ring index `off` cycles before ring index `cur` (`off < slots`).
+#[inline(always)]
+fn back(cur: usize, off: usize, slots: usize) -> usize {
+    if cur >= off {
+        cur - off
+    } else {
+        cur + slots - off
+    }
+}
+
 /// Run the unit cycle by cycle over `boxes`.
 pub fn run(unit: &Unit, boxes: &[Aabb], flow: &Flow, port: &Port) -> Result<SteppedRun, HwError> {
     flow.validate()?;
@@ -72,6 +82,8 @@ pub fn run(unit: &Unit, boxes: &[Aabb], flow: &Flow, port: &Port) -> Result<Step
     let mut bus_free = 0u64;
     let mut prev_acc = 0u64;
     let mut t = 0u64;
+    // `t mod slots`, kept incrementally (the ring index of tokens entering this cycle).
+    let mut cur = 0usize;
     loop {
         // Phase 1: read data arriving this cycle.
         while inflight.front().is_some_and(|f| f.0 <= t) {
@@ -84,14 +96,14 @@ pub fn run(unit: &Unit, boxes: &[Aabb], flow: &Flow, port: &Port) -> Result<Step
         // Stage completions: tokens that entered `off` cycles ago finish the stage at `off`.
         for &(off, op) in &done_at {
             if t >= off {
-                for tok in pipe[((t - off) % slots as u64) as usize].iter_mut() {
+                for tok in pipe[back(cur, off as usize, slots)].iter_mut() {
                     unit.apply(op, tok);
                 }
             }
         }
         // Phase 2: finished codes into the output FIFO.
         if t >= depth {
-            let slot = &mut pipe[((t - depth) % slots as u64) as usize];
+            let slot = &mut pipe[back(cur, depth as usize, slots)];
             for tok in slot.drain(..) {
                 out_fifo.push_back(tok.code());
                 exited += 1;
@@ -125,7 +137,7 @@ pub fn run(unit: &Unit, boxes: &[Aabb], flow: &Flow, port: &Port) -> Result<Step
             }
         }
         // Phase 4: lanes accept under output credit.
-        let slot = (t % slots as u64) as usize;
+        let slot = cur;
         for lane in lane_next.iter_mut() {
             if *lane > t {
                 continue;
@@ -180,6 +192,7 @@ pub fn run(unit: &Unit, boxes: &[Aabb], flow: &Flow, port: &Port) -> Result<Step
             break;
         }
         t += 1;
+        cur = if cur + 1 == slots { 0 } else { cur + 1 };
     }
     st.last_accept = prev_acc;
     st.cycles = port.end_cycle(bus_free);
