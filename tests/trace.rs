@@ -809,15 +809,28 @@ fn shared_scenes_equal_brute_force() {
             eprintln!("skipping {name}: not present");
             continue;
         };
-        let rays = test_rays(tris, 60, 21);
-        check_against_brute_force(name, tris, a.wide_bvh(), &rays);
+        let mut rays = test_rays(tris, 60, 21);
         // Protocol rays too: a slice of the primary rays.
         let f = SceneFrame::of(tris);
         let cam = Camera::protocol(&f, CameraMode::for_scene(name));
-        let prim: Vec<Ray> = primary_rays(&cam, 256, 256)
-            .into_iter()
-            .step_by(1093)
-            .collect();
-        check_against_brute_force(name, tris, a.wide_bvh(), &prim);
+        rays.extend(primary_rays(&cam, 256, 256).into_iter().step_by(1093));
+        let want = brute_force(tris, &rays);
+        check_against(&format!("{name} binned-sah"), a.wide_bvh(), &rays, &want);
+        // The LBVH builders: two layouts, both hierarchy builders, with and without atrbvh.
+        for (builder, layout, restructure) in [
+            (Builder::Lbvh, "morton63", false),
+            (Builder::LbvhApetrei, "emc64-var", false),
+            (Builder::Lbvh, "emc64-var", true),
+        ] {
+            let opts = BuildOptions {
+                builder: Some(builder),
+                layout: Some(layout.parse().unwrap()),
+                restructure: Some(restructure),
+                ..BuildOptions::default()
+            };
+            let b = Accel::from_triangles(tris.clone(), &opts).unwrap();
+            let label = format!("{name} {builder}/{layout}/atr={restructure}");
+            check_against(&label, b.wide_bvh(), &rays, &want);
+        }
     }
 }
