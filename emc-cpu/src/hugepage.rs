@@ -14,9 +14,7 @@ fn advise<T>(v: &Vec<T>) {
     {
         const HUGE: usize = 2 << 20;
         let bytes = v.capacity() * std::mem::size_of::<T>();
-        static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
-        let on = *ON.get_or_init(|| std::env::var_os("EMC_HUGEPAGE").is_some_and(|v| v == "1"));
-        if bytes < MIN_BYTES || !on {
+        if bytes < MIN_BYTES || !enabled() {
             return;
         }
         let start = v.as_ptr() as usize;
@@ -35,8 +33,18 @@ fn advise<T>(v: &Vec<T>) {
     let _ = v;
 }
 
-/// A vector of `n` copies of `x`, filled in parallel after the huge-page hint.
+/// True when `EMC_HUGEPAGE=1` (read once).
+pub fn enabled() -> bool {
+    static ON: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *ON.get_or_init(|| std::env::var_os("EMC_HUGEPAGE").is_some_and(|v| v == "1"))
+}
+
+/// A vector of `n` copies of `x`: with huge pages, filled in parallel after the hint; else
+/// `vec![x; n]` (zeroed allocator pages, no writing pass, when `x` is a zero integer).
 pub fn filled<T: Copy + Send + Sync>(n: usize, x: T) -> Vec<T> {
+    if !enabled() {
+        return vec![x; n];
+    }
     let mut v: Vec<T> = Vec::with_capacity(n);
     advise(&v);
     v.par_extend((0..n).into_par_iter().with_min_len(1 << 14).map(|_| x));

@@ -7,7 +7,7 @@ use std::sync::atomic::{AtomicU32, Ordering};
 use emc_core::Aabb;
 use rayon::prelude::*;
 
-use super::refit::{CollapseParams, RadixTree, LEAVES_PER_TASK, NONE};
+use super::refit::{zeroed, CollapseParams, RadixTree, LEAVES_PER_TASK, NONE};
 use crate::sort::RadixKey;
 
 /// Distance between the index-augmented keys at `k` and `k + 1`: the XOR of the keys, then (for
@@ -28,7 +28,7 @@ fn dist<K: RadixKey>(keys: &[K], k: usize) -> (u64, u32) {
 ///
 /// Each leaf climbs while it is the second to reach a node: it records itself as the node's
 /// left or right child, then swaps its own range end into the node's `other` slot (`AcqRel`).
-/// The first arrival reads `NONE` and stops; the second reads the first's range end, extends
+/// The first arrival reads 0 (empty) and stops; the second reads the first's range end, extends
 /// its range, and — the acquire half having made the first child's slot visible — finishes the
 /// node and climbs on.
 pub fn build_apetrei<K: RadixKey>(keys: &[K], sorted: &[Aabb], k: &CollapseParams) -> RadixTree {
@@ -37,7 +37,8 @@ pub fn build_apetrei<K: RadixKey>(keys: &[K], sorted: &[Aabb], k: &CollapseParam
     if keys.len() < 2 {
         return tree;
     }
-    let other: Vec<AtomicU32> = (0..n - 1).map(|_| AtomicU32::new(NONE)).collect();
+    // Range ends are stored plus one, so that the zeroed buffer means "nobody arrived yet".
+    let other: Vec<AtomicU32> = zeroed(n - 1);
     let root = AtomicU32::new(NONE);
     let leaf0 = (n - 1) as u32;
     {
@@ -59,19 +60,19 @@ pub fn build_apetrei<K: RadixKey>(keys: &[K], sorted: &[Aabb], k: &CollapseParam
                     if go_right_parent {
                         parent = hi;
                         tree.children[parent][0].store(cur, Ordering::Relaxed);
-                        let prev = other[parent].swap(lo as u32, Ordering::AcqRel);
-                        if prev == NONE {
+                        let prev = other[parent].swap(lo as u32 + 1, Ordering::AcqRel);
+                        if prev == 0 {
                             break;
                         }
-                        hi = prev as usize;
+                        hi = prev as usize - 1;
                     } else {
                         parent = lo - 1;
                         tree.children[parent][1].store(cur, Ordering::Relaxed);
-                        let prev = other[parent].swap(hi as u32, Ordering::AcqRel);
-                        if prev == NONE {
+                        let prev = other[parent].swap(hi as u32 + 1, Ordering::AcqRel);
+                        if prev == 0 {
                             break;
                         }
-                        lo = prev as usize;
+                        lo = prev as usize - 1;
                     }
                     let (l, r) = tree.children_of(parent as u32);
                     tree.finish(parent as u32, l, r, sorted, k);

@@ -108,6 +108,37 @@ impl Slot {
     }
 }
 
+/// Types whose all-zero bit pattern is a valid value, so buffers of them can come straight from
+/// the allocator's zeroed pages (no initialising pass over memory the build overwrites anyway).
+///
+/// # Safety
+/// Implement only for types for which all-zero bytes are a valid, initialised value.
+pub(crate) unsafe trait Zeroable: Sized {}
+// SAFETY: an atomic integer is an integer in a cell; zero is a valid value.
+unsafe impl Zeroable for AtomicU8 {}
+// SAFETY: as above.
+unsafe impl Zeroable for AtomicU32 {}
+// SAFETY: an array of zeroable values is zeroable.
+unsafe impl Zeroable for [AtomicU32; 2] {}
+// SAFETY: `Slot` holds only atomic integers (and padding), each valid at zero.
+unsafe impl Zeroable for Slot {}
+
+/// `n` zero values from zeroed allocator memory (lazily faulted in by the OS).
+pub(crate) fn zeroed<T: Zeroable>(n: usize) -> Vec<T> {
+    if n == 0 || std::mem::size_of::<T>() == 0 {
+        return Vec::new();
+    }
+    let layout = std::alloc::Layout::array::<T>(n).expect("at most 2^31 nodes of ≤ 64 bytes");
+    // SAFETY: the layout has a non-zero size (checked above).
+    let p = unsafe { std::alloc::alloc_zeroed(layout) }.cast::<T>();
+    if p.is_null() {
+        std::alloc::handle_alloc_error(layout);
+    }
+    // SAFETY: `p` comes from the global allocator with the layout of `[T; n]` (what `Vec` frees
+    // with), is non-null and holds `n` zeroed `T`, each a valid value by `Zeroable`.
+    unsafe { Vec::from_raw_parts(p, n, n) }
+}
+
 /// A binary radix tree over `n` sorted leaves. Node ids: internal nodes `0..n−1`, leaf of sorted
 /// position `p` = `n − 1 + p` (so with one primitive the root is the leaf, id 0).
 #[derive(Debug)]
@@ -150,19 +181,23 @@ pub(crate) fn leaf_data(sorted: &[Aabb], p: usize, k: &CollapseParams) -> SlotDa
 }
 
 impl RadixTree {
-    /// An empty tree shell for `n ≥ 1` leaves (children unset, slots zero).
+    /// An empty tree shell for `n ≥ 1` leaves: children and slots zero (every one is written by
+    /// the builder before it is read), parent links zero except node 0's, which is [`NONE`]
+    /// (node 0 is Karras' root; the builder sets every other node's parent).
     pub(crate) fn with_leaves(n: usize, parents: bool) -> RadixTree {
         let inner = n.saturating_sub(1);
-        use crate::hugepage::from_fn;
+        let parents = if parents {
+            let p: Vec<AtomicU32> = zeroed(inner + n);
+            p[0].store(NONE, Ordering::Relaxed);
+            p
+        } else {
+            Vec::new()
+        };
         RadixTree {
             n,
-            children: from_fn(inner, |_| [AtomicU32::new(NONE), AtomicU32::new(NONE)]),
-            parents: if parents {
-                from_fn(inner + n, |_| AtomicU32::new(NONE))
-            } else {
-                Vec::new()
-            },
-            slots: from_fn(inner, |_| Slot::default()),
+            children: zeroed(inner),
+            parents,
+            slots: zeroed(inner),
             root: 0,
         }
     }
@@ -273,7 +308,7 @@ pub fn refit(tree: &RadixTree, sorted: &[Aabb], k: &CollapseParams) {
     if n < 2 {
         return;
     }
-    let flags: Vec<AtomicU8> = (0..n - 1).map(|_| AtomicU8::new(0)).collect();
+    let flags: Vec<AtomicU8> = zeroed(n - 1);
     (0..n)
         .into_par_iter()
         .with_min_len(LEAVES_PER_TASK)
