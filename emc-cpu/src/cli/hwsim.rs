@@ -129,6 +129,11 @@ pub fn run(a: &HwsimArgs) -> anyhow::Result<()> {
         frame.diagonal()
     );
     let unit = Unit::for_spec(&spec, &frame, &opts)?;
+    // Refuse bad buffer sizes and memory settings before any work.
+    unit.flow(n).validate()?;
+    for &bw in &bandwidths {
+        emc_hwsim::Port::new(&mem_at(bw))?;
+    }
     println!("\n{unit}");
     println!(
         "{}",
