@@ -339,20 +339,14 @@ pub fn encoder_for(aabbs: &[Aabb], layout: &LayoutSpec) -> Result<Encoder, Build
 /// Codes of the boxes in parallel (64-bit words for every layout).
 pub fn encode_codes(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u64>, BuildError> {
     let mut codes = crate::hugepage::filled(aabbs.len(), 0u64);
-    codes
-        .par_chunks_mut(CHUNK)
-        .zip(aabbs.par_chunks(CHUNK))
-        .try_for_each(|(o, b)| enc.encode_batch(b, o))?;
+    crate::encode::encode_parallel(enc, aabbs, &mut codes)?;
     Ok(codes)
 }
 
 /// Codes of the boxes as `u32` (layouts of at most 32 bits).
 fn encode_codes_u32(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u32>, BuildError> {
     let mut codes = crate::hugepage::filled(aabbs.len(), 0u32);
-    codes
-        .par_chunks_mut(CHUNK)
-        .zip(aabbs.par_chunks(CHUNK))
-        .try_for_each(|(o, b)| enc.encode_batch_u32(b, o))?;
+    crate::encode::encode_parallel_u32(enc, aabbs, &mut codes)?;
     Ok(codes)
 }
 
