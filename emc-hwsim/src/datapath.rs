@@ -538,7 +538,7 @@ impl Unit {
         let generic = !matches!(
             (&self.regs.size, &self.regs.net),
             (
-                SizeUnit::None | SizeUnit::Thresholds { .. },
+                SizeUnit::None | SizeUnit::Thresholds { .. } | SizeUnit::Formula { .. },
                 Network::Fixed { .. } | Network::Benes(_)
             )
         );
@@ -599,6 +599,24 @@ impl Unit {
                     let p = q[3][j];
                     q[3][j] = p + stride * (keys[((p + stride) & 255) as usize] <= key[j]) as u64;
                 }
+            }
+        }
+        if let SizeUnit::Formula {
+            bits,
+            transform,
+            diag,
+        } = r.size
+        {
+            for (j, b) in boxes.iter().enumerate() {
+                let dx = b.max.x as f64 - b.min.x as f64;
+                let dy = b.max.y as f64 - b.min.y as f64;
+                let dz = b.max.z as f64 - b.min.z as f64;
+                let d = ((dx * dx + dy * dy) + dz * dz).sqrt();
+                let v = match transform {
+                    SizeTransform::Linear => exp_add(d, bits) / diag,
+                    SizeTransform::Sqrt => exp_add((d / diag).sqrt(), bits),
+                };
+                q[3][j] = float_to_fixed(v, bits);
             }
         }
         if let Network::Fixed { .. } = r.net {
