@@ -346,9 +346,10 @@ impl Stack {
     }
 }
 
-/// Push the entered lanes of `hits`, farthest first, so the nearest is popped next.
+/// Push the entered lanes of `hits` but the nearest, farthest first, and return the nearest
+/// (visited next without a round trip through the stack).
 #[inline(always)]
-fn push_ordered(stack: &mut Stack, node: &WideNode, (mask, dist): LaneHits) {
+fn push_ordered(stack: &mut Stack, node: &WideNode, (mask, dist): LaneHits) -> Option<(u32, f32)> {
     let mut e = [(0u32, 0.0f32); WIDTH];
     let mut n = 0;
     let mut m = mask;
@@ -368,9 +369,13 @@ fn push_ordered(stack: &mut Stack, node: &WideNode, (mask, dist): LaneHits) {
         e[j] = (code, dist[lane]);
         n += 1;
     }
-    for &x in &e[..n] {
+    if n == 0 {
+        return None;
+    }
+    for &x in &e[..n - 1] {
         stack.push(x);
     }
+    Some(e[n - 1])
 }
 
 /// Closest hit of `ray` in `bvh` (`None` when nothing is hit in `[tnear, tfar]` or the ray is
@@ -399,8 +404,8 @@ pub fn closest<const STATS: bool>(
     let mut found = false;
     let mut cull = slack(r.tfar);
     let mut stack = Stack::new();
-    stack.push((0, r.tnear));
-    while let Some((code, d)) = stack.pop() {
+    let mut next = Some((0, r.tnear));
+    while let Some((code, d)) = next.take().or_else(|| stack.pop()) {
         if d > cull {
             continue;
         }
@@ -429,7 +434,7 @@ pub fn closest<const STATS: bool>(
                 stats.node_tests += 1;
             }
             let hits = tester.test(node, &r, cull);
-            push_ordered(&mut stack, node, hits);
+            next = push_ordered(&mut stack, node, hits);
         }
     }
     found.then_some(best)
