@@ -567,3 +567,46 @@ fn shared_scenes_up_to_1m_are_bit_exact() {
         );
     }
 }
+
+#[test]
+fn stalls_are_attributed_to_their_cause_and_setup_is_costed() {
+    let boxes = small_scene(9, 3000);
+    let frame = Frame::new(&boxes).unwrap();
+    let d = UnitOptions::default();
+    // Starved input: low bandwidth, the output FIFO never fills.
+    let u = Unit::for_spec(&LayoutSpec::Emc64Var, &frame, &d).unwrap();
+    let s = u
+        .run(&boxes, &mem(6.4, 100.0), Mode::Stepped)
+        .unwrap()
+        .stats;
+    assert!(s.stall_input > 0 && s.stall_output == 0, "{s}");
+    // An output FIFO of one burst cannot cover the 22 codes in flight: credit stalls appear.
+    let small_out = UnitOptions {
+        output_capacity: 8,
+        ..d
+    };
+    let u = Unit::for_spec(&LayoutSpec::Emc64Var, &frame, &small_out).unwrap();
+    let s = u
+        .run(&boxes, &mem(200.0, 10.0), Mode::Stepped)
+        .unwrap()
+        .stats;
+    assert!(s.stall_output > 0, "{s}");
+    assert!(s.codes_per_cycle() < 0.5, "{s}");
+    // Setup: the bounds pass streams 24 B per AABB at the port's bandwidth.
+    let m = mem(12.8, 100.0);
+    let c = emc_hwsim::setup::setup_cost(&u, 1_000_000, &m, false).unwrap();
+    assert_eq!(c.bounds_cycles, 24_000_000 * 10 / 128 + 100);
+    assert_eq!(c.schedule_cycles, 64);
+    let c2 = emc_hwsim::setup::setup_cost(&u, 1_000_000, &m, true).unwrap();
+    assert_eq!(c2.bounds_cycles, 0);
+    let fixed = Unit::for_spec(&LayoutSpec::Morton63, &frame, &d).unwrap();
+    let cf = emc_hwsim::setup::setup_cost(&fixed, 10, &m, true).unwrap();
+    assert_eq!(
+        (
+            cf.schedule_cycles,
+            cf.host_routing_steps,
+            cf.host_threshold_evals
+        ),
+        (0, 0, 0)
+    );
+}
