@@ -9,7 +9,7 @@
 use emc_core::{Aabb, LayoutSpec};
 use emc_cpu::build::{
     build_aabbs, encode_codes, encoder_for, lbvh_tree, sort_codes, BuildOptions, BuildOutput,
-    Builder,
+    Builder, Phase,
 };
 use emc_cpu::bvh::refit::{gather_sorted, CollapseParams, RadixTree};
 use emc_cpu::bvh::{sah_cost, Bvh, Node, SahConstants};
@@ -366,6 +366,27 @@ fn parallel_and_single_thread_builds_are_bit_identical() {
         opts(LayoutSpec::Morton63, Builder::LbvhApetrei, 2, 8),
     );
     assert_eq!(k.bvh, a.bvh);
+}
+
+#[test]
+fn atrbvh_keeps_the_leaves_and_never_raises_the_sah_of_the_lbvh() {
+    // With one primitive per leaf the collapse changes nothing, so the collapsed figure is the
+    // SAH (Ct = 1.2, Ci = 1) of the restructured Karras tree: never above the plain LBVH's.
+    for scene in ["mixed", "city"] {
+        let aabbs = builtin(scene, 50_000);
+        let l = build(&aabbs, opts(LayoutSpec::Emc64Var, Builder::Lbvh, 2, 1));
+        let a = build(&aabbs, opts(LayoutSpec::Emc64Var, Builder::Atrbvh, 2, 1));
+        assert_eq!(a.bvh.nodes.len(), l.bvh.nodes.len(), "{scene}");
+        assert!(
+            a.report.sah_collapsed < l.report.sah_collapsed,
+            "{scene}: atrbvh {} vs lbvh {}",
+            a.report.sah_collapsed,
+            l.report.sah_collapsed
+        );
+        assert!(a.report.phase(Phase::Optimize).cpu_ms > 0.0, "{scene}");
+        assert_eq!(l.report.phase(Phase::Optimize).cpu_ms, 0.0, "{scene}");
+    }
+    assert_eq!("atrbvh".parse::<Builder>().unwrap(), Builder::Atrbvh);
 }
 
 #[test]

@@ -1,6 +1,7 @@
 //! The BVH build pipeline driver: triangles → boxes → frame → codes → radix sort → hierarchy
-//! (Karras or Apetrei) → bounds → SAH collapse, or the binned-SAH reference, on a local rayon
-//! pool, timing every phase in wall and thread-CPU milliseconds.
+//! (Karras or Apetrei) → bounds → SAH collapse, optionally with treelet restructuring (`atrbvh`),
+//! or the binned-SAH reference, on a local rayon pool, timing every phase in wall and thread-CPU
+//! milliseconds.
 
 use std::fmt;
 use std::str::FromStr;
@@ -10,6 +11,7 @@ use emc_core::{Aabb, Encoder, Frame, LayoutSpec, Normalization, SceneBounds};
 use rayon::prelude::*;
 
 use crate::bvh::apetrei::build_apetrei;
+use crate::bvh::atrbvh::{restructure, AtrConfig, AtrError};
 use crate::bvh::binned_sah::{build_binned_sah, BinnedSahError, DEFAULT_BINS};
 use crate::bvh::collapse::{collapse_bvh, emit};
 use crate::bvh::karras::build_karras;
@@ -33,11 +35,19 @@ pub enum Builder {
     LbvhApetrei,
     /// Top-down binned SAH, 32 bins, the quality reference (`binned-sah`).
     BinnedSah,
+    /// Karras LBVH with one primitive per leaf, agglomerative treelet restructuring (treelets of
+    /// 9, 2 iterations), then the SAH collapse (`atrbvh`).
+    Atrbvh,
 }
 
 impl Builder {
     /// All builders, in the order reports list them.
-    pub const ALL: [Builder; 3] = [Builder::Lbvh, Builder::LbvhApetrei, Builder::BinnedSah];
+    pub const ALL: [Builder; 4] = [
+        Builder::Lbvh,
+        Builder::LbvhApetrei,
+        Builder::BinnedSah,
+        Builder::Atrbvh,
+    ];
 
     /// The command-line name.
     pub fn name(self) -> &'static str {
@@ -45,6 +55,7 @@ impl Builder {
             Builder::Lbvh => "lbvh",
             Builder::LbvhApetrei => "lbvh-apetrei",
             Builder::BinnedSah => "binned-sah",
+            Builder::Atrbvh => "atrbvh",
         }
     }
 }
@@ -68,8 +79,8 @@ impl FromStr for Builder {
 /// Everything that can stop a build.
 #[derive(Debug, thiserror::Error)]
 pub enum BuildError {
-    /// A builder name that is not `lbvh`, `lbvh-apetrei` or `binned-sah`.
-    #[error("unknown builder `{0}` (expected lbvh, lbvh-apetrei or binned-sah)")]
+    /// A builder name that is not `lbvh`, `lbvh-apetrei`, `binned-sah` or `atrbvh`.
+    #[error("unknown builder `{0}` (expected lbvh, lbvh-apetrei, binned-sah or atrbvh)")]
     UnknownBuilder(String),
     /// `threads` of 0.
     #[error("the thread count must be at least 1")]
@@ -100,6 +111,9 @@ pub enum BuildError {
     /// The binned-SAH builder refused its input.
     #[error(transparent)]
     Binned(#[from] BinnedSahError),
+    /// The treelet restructuring refused its input.
+    #[error(transparent)]
+    Atr(#[from] AtrError),
 }
 
 /// Options of a build.
@@ -141,18 +155,21 @@ pub enum Phase {
     Hierarchy,
     /// Bottom-up bounds with the collapse decisions (Karras only).
     Bounds,
+    /// Treelet restructuring of the one-primitive-per-leaf tree (`atrbvh` only).
+    Optimize,
     /// Writing the collapsed BVH.
     Collapse,
 }
 
 impl Phase {
     /// All phases in pipeline order.
-    pub const ALL: [Phase; 6] = [
+    pub const ALL: [Phase; 7] = [
         Phase::Aabb,
         Phase::Encode,
         Phase::Sort,
         Phase::Hierarchy,
         Phase::Bounds,
+        Phase::Optimize,
         Phase::Collapse,
     ];
 
@@ -164,6 +181,7 @@ impl Phase {
             Phase::Sort => "sort",
             Phase::Hierarchy => "hierarchy",
             Phase::Bounds => "bounds",
+            Phase::Optimize => "optimize",
             Phase::Collapse => "collapse",
         }
     }
@@ -190,7 +208,7 @@ pub struct BuildReport {
     /// The resolved layout, as the seed prints it (`None` for binned SAH).
     pub layout: Option<String>,
     /// Time per phase, indexed like [`Phase::ALL`].
-    pub phases: [PhaseTime; 6],
+    pub phases: [PhaseTime; 7],
     /// Radix sort passes done and skipped.
     pub sort: SortReport,
     /// Nodes of the collapsed BVH.
@@ -277,7 +295,7 @@ fn thread_cpu_ms() -> f64 {
 struct Timed {
     pool: rayon::ThreadPool,
     threads: usize,
-    phases: [PhaseTime; 6],
+    phases: [PhaseTime; 7],
 }
 
 impl Timed {
@@ -295,7 +313,7 @@ impl Timed {
         Ok(Timed {
             pool,
             threads,
-            phases: [PhaseTime::default(); 6],
+            phases: [PhaseTime::default(); 7],
         })
     }
 
@@ -361,7 +379,7 @@ pub fn sort_codes<K: RadixKey>(
 
 /// The radix tree of sorted codes by the chosen LBVH builder, finished by the bottom-up pass
 /// (bounds, counts, collapse decisions); `sorted[p]` is the box at sorted position `p` (see
-/// [`gather_sorted`]). Not for [`Builder::BinnedSah`] (treated as `lbvh`).
+/// [`gather_sorted`]). Not for [`Builder::BinnedSah`] or [`Builder::Atrbvh`] (treated as `lbvh`).
 pub fn lbvh_tree<K: RadixKey>(
     builder: Builder,
     keys: &[K],
@@ -452,6 +470,10 @@ fn lbvh_phases<K: RadixKey>(
 ) -> Result<(Bvh, SortReport, f64), BuildError> {
     let k = opts.collapse;
     let (keys, order, sort) = timed.run(Phase::Sort, || sort_codes(codes))?;
+    if opts.builder == Builder::Atrbvh {
+        let bvh = atrbvh_phases(timed, &keys, aabbs, order, &k)?;
+        return Ok((bvh.0, sort, bvh.1));
+    }
     let (tree, sorted) = match opts.builder {
         Builder::LbvhApetrei => timed.run(Phase::Hierarchy, || {
             let sorted = gather_sorted(aabbs, &order);
@@ -472,6 +494,31 @@ fn lbvh_phases<K: RadixKey>(
     let (bvh, _depth) = timed.run(Phase::Collapse, || emit(&tree, &sorted, order));
     timed.pool.install(move || drop((tree, sorted)));
     Ok((bvh, sort, headline))
+}
+
+/// `atrbvh` after the sort: Karras topology, bounds, the one-primitive-per-leaf BVH, treelet
+/// restructuring (phase `optimize`) and the SAH collapse; returns the BVH and the headline SAH
+/// of the restructured tree.
+fn atrbvh_phases<K: RadixKey>(
+    timed: &mut Timed,
+    keys: &[K],
+    aabbs: &[Aabb],
+    order: Vec<u32>,
+    k: &CollapseParams,
+) -> Result<(Bvh, f64), BuildError> {
+    let t = timed.run(Phase::Hierarchy, || build_karras(keys));
+    let sorted = timed.run(Phase::Bounds, || {
+        let sorted = gather_sorted(aabbs, &order);
+        refit(&t, &sorted, &CollapseParams::NONE);
+        sorted
+    });
+    let (mut plain, _) = timed.run(Phase::Collapse, || emit(&t, &sorted, order));
+    timed.pool.install(move || drop((t, sorted)));
+    let cfg = AtrConfig::default();
+    timed.run(Phase::Optimize, || restructure(&mut plain, aabbs, &cfg))?;
+    let headline = timed.pool.install(|| sah_headline(&plain));
+    let bvh = timed.run(Phase::Collapse, || collapse_bvh(&plain, k));
+    Ok((bvh, headline))
 }
 
 fn finish(

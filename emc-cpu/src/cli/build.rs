@@ -17,7 +17,7 @@ pub struct BuildArgs {
     /// custom:PATTERN (optionally followed by :linear).
     #[arg(long, default_value = "emc64-var")]
     pub layout: String,
-    /// Hierarchy builder: lbvh, lbvh-apetrei or binned-sah.
+    /// Hierarchy builder: lbvh, lbvh-apetrei, binned-sah or atrbvh.
     #[arg(long, default_value = "lbvh")]
     pub builder: String,
     /// Threads of the build pool (at least 1).
