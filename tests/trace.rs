@@ -834,3 +834,44 @@ fn shared_scenes_equal_brute_force() {
         }
     }
 }
+
+#[test]
+fn hard_builtin_scenes_equal_brute_force() {
+    // The builders' hard cases (points, planes, far/huge/tiny/subnormal coordinates, needles,
+    // duplicates...): every tree converts and traces exactly like brute force.
+    for name in scene::builtin::HARD_NAMES {
+        let Ok(s) = scene::load_with(
+            &format!("builtin:{name}"),
+            &SceneOptions {
+                prims: Some(2000),
+                ..SceneOptions::default()
+            },
+        ) else {
+            eprintln!("builtin:{name} does not load at 2000 triangles; skipped");
+            continue;
+        };
+        let tris = triangles(&s);
+        let rays = test_rays(&tris, 2000, 31);
+        let want = brute_force(&tris, &rays);
+        for (builder, layout) in [
+            (Builder::BinnedSah, "emc64-var"),
+            (Builder::Lbvh, "emc64-var"),
+            (Builder::LbvhApetrei, "morton30"),
+        ] {
+            let opts = BuildOptions {
+                builder: Some(builder),
+                layout: Some(layout.parse().unwrap()),
+                ..BuildOptions::default()
+            };
+            match Accel::from_triangles(tris.clone(), &opts) {
+                Ok(a) => check_against(
+                    &format!("builtin:{name} {builder}/{layout}"),
+                    a.wide_bvh(),
+                    &rays,
+                    &want,
+                ),
+                Err(e) => panic!("builtin:{name} {builder}/{layout}: {e}"),
+            }
+        }
+    }
+}

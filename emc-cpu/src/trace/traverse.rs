@@ -1,27 +1,38 @@
 //! Single-ray traversal of a [`WideBvh`]: closest hit and any hit, with an SSE node test (one
 //! slab test of all four children per instruction) and a scalar node test that is its
 //! bit-exact reference. Children are visited nearest first; a node is skipped when its entry
-//! distance exceeds the best hit so far (with a rounding slack, [`CULL_SLACK`]; `t ≤ best` is
-//! kept, so ties still reach lower ids).
+//! distance exceeds the best hit so far (with a rounding slack, [`CULL_SLACK`] plus an
+//! absolute part; `t ≤ best` is kept, so ties still reach lower ids).
 
 use core::mem::MaybeUninit;
 
 use crate::trace::intersect::{better, slab_test, triangle_test, Hit, PreRay, Ray};
 use crate::trace::wide::{TriPacket, WideBvh, WideNode, EMPTY, LEAF, STACK_CAPACITY, WIDTH};
 
-/// Slack of distance culling: a node is skipped when its entry distance exceeds
-/// `best · CULL_SLACK` (or `tfar · CULL_SLACK`). A box entry and a triangle distance are
-/// rounded differently, so a triangle whose computed `t` ties or beats the best (e.g. two
-/// triangles meeting at the vertex a ray aims at) can sit in a box whose computed entry is a
-/// few ulps beyond it; the slack (2^-12, far above those rounding errors) keeps such triangles
-/// visible, so traversal returns exactly the brute-force answer. Triangles themselves are still
-/// accepted only for `t ≤ best` (then the lower id wins ties).
+/// Relative slack of distance culling, 2^-12. A node is skipped only when its entry distance
+/// exceeds `slack(best)` (or `slack(tfar)`): box entries and triangle distances are rounded
+/// differently, so a triangle whose computed `t` ties or beats the best (two triangles meeting
+/// at the vertex a ray aims at, overlapping coplanar triangles) can sit in a box whose
+/// computed entry lies beyond it. The slack keeps such triangles visible, so traversal returns
+/// exactly the brute-force answer; triangles themselves are still accepted only for
+/// `t ≤ best` (then the lower id wins ties).
 pub const CULL_SLACK: f32 = 1.0 + 1.0 / 4096.0;
 
-/// `t` pushed away from zero by the relative slack: `t + |t|·2^-12` (+inf stays +inf).
+/// Absolute part of the culling slack, per ray: `2^-16 · (M + max|o|) / max|d|` with `M` the
+/// largest vertex coordinate. A triangle's `t` carries an absolute error of a few ulps of the
+/// coordinates (vertices minus origin), which dwarfs `t` itself when the origin sits close to
+/// the geometry; 2^-16 leaves a margin of 2^7 over the 2^-23 of those roundings.
 #[inline(always)]
-fn slack(t: f32) -> f32 {
-    t + t.abs() * (CULL_SLACK - 1.0)
+fn abs_slack(bvh: &WideBvh, r: &PreRay) -> f32 {
+    let o = r.org.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+    let d = r.dir.iter().fold(0.0f32, |m, x| m.max(x.abs()));
+    (bvh.max_abs + o) * (1.0 / 65536.0) / d
+}
+
+/// `t` pushed away by both slacks: `t + |t|·2^-12 + abs` (+inf stays +inf).
+#[inline(always)]
+fn slack(t: f32, abs: f32) -> f32 {
+    t + t.abs() * (CULL_SLACK - 1.0) + abs
 }
 
 /// Work counters of a traversal (summed over rays).
@@ -395,6 +406,7 @@ pub fn closest<const STATS: bool>(
     }
     let r = PreRay::new(ray);
     let tester = Tester::new(kind, &r);
+    let abs = abs_slack(bvh, &r);
     let mut best = Hit {
         t: r.tfar,
         prim: u32::MAX,
@@ -402,7 +414,7 @@ pub fn closest<const STATS: bool>(
         v: 0.0,
     };
     let mut found = false;
-    let mut cull = slack(r.tfar);
+    let mut cull = slack(r.tfar, abs);
     let mut stack = Stack::new();
     let mut next = Some((0, r.tnear));
     while let Some((code, d)) = next.take().or_else(|| stack.pop()) {
@@ -422,7 +434,7 @@ pub fn closest<const STATS: bool>(
                         found = true;
                     }
                 });
-                cull = slack(best.t);
+                cull = slack(best.t, abs);
                 if p.last != 0 {
                     break;
                 }
@@ -456,7 +468,8 @@ pub fn occluded<const STATS: bool>(
     }
     let r = PreRay::new(ray);
     let tester = Tester::new(kind, &r);
-    let cull = slack(r.tfar);
+    let abs = abs_slack(bvh, &r);
+    let cull = slack(r.tfar, abs);
     let mut stack = Stack::new();
     stack.push((0, r.tnear));
     while let Some((code, _)) = stack.pop() {

@@ -94,8 +94,8 @@ impl WideNode {
         }
     }
 
-    fn set(&mut self, lane: usize, b: &Aabb, code: u32) {
-        let (lo, hi) = (b.min.to_array(), b.max.to_array());
+    fn set(&mut self, lane: usize, b: &Aabb, code: u32, pad: f32) {
+        let (lo, hi) = ((b.min - pad).to_array(), (b.max + pad).to_array());
         for a in 0..3 {
             self.planes[2 * a][lane] = lo[a];
             self.planes[2 * a + 1][lane] = hi[a];
@@ -122,6 +122,8 @@ pub struct WideBvh {
     pub packets: Vec<TriPacket>,
     /// Number of triangles.
     pub triangles: usize,
+    /// Largest absolute vertex coordinate (sizes the traversal's absolute culling slack).
+    pub max_abs: f32,
     /// Depth of the wide tree (root alone: 0); at most [`MAX_DEPTH`].
     pub depth: usize,
     /// Number of leaves.
@@ -159,16 +161,25 @@ impl WideBvh {
             nodes: Vec::with_capacity(bvh.nodes.len() / 2 + 1),
             packets: Vec::with_capacity(tris.len() / 2),
             triangles: tris.len(),
+            max_abs: aabbs.iter().fold(0.0f32, |m, b| {
+                m.max(b.min.abs().max_element())
+                    .max(b.max.abs().max_element())
+            }),
             depth: 0,
             leaves: 0,
         };
         // Work items: (BVH2 node, wide parent index, lane, depth of the new wide node).
+        // Child boxes are padded by 2^-16 of the largest coordinate: the triangle test rounds
+        // `vertex − origin` to ulps of the coordinates, so with needles thinner than an ulp it
+        // can report a hit a hair outside the exact box; the pad (2^7 ulps) keeps such hits
+        // inside. It covers origins no farther from 0 than the geometry (then |o| ≤ M).
+        let pad = out.max_abs * (1.0 / 65536.0);
         let mut work: Vec<(u32, usize, usize, usize)> = Vec::new();
         let root = &bvh.nodes[bvh.root as usize];
         out.nodes.push(WideNode::empty());
         if root.is_leaf() {
             let code = out.emit_leaf(bvh, bvh.root, tris);
-            out.nodes[0].set(0, &root.bounds, code);
+            out.nodes[0].set(0, &root.bounds, code, pad);
             return Ok(out);
         }
         work.push((bvh.root, usize::MAX, 0, 0));
@@ -211,9 +222,9 @@ impl WideBvh {
                 let kn = &bvh.nodes[k as usize];
                 if kn.is_leaf() {
                     let code = out.emit_leaf(bvh, k, tris);
-                    out.nodes[me].set(lane, &kn.bounds, code);
+                    out.nodes[me].set(lane, &kn.bounds, code, pad);
                 } else {
-                    out.nodes[me].set(lane, &kn.bounds, EMPTY);
+                    out.nodes[me].set(lane, &kn.bounds, EMPTY, pad);
                     inner.push((k, lane));
                 }
             }
