@@ -8,6 +8,7 @@ pub mod build;
 pub mod bvh;
 pub mod cli;
 pub mod hugepage;
+pub mod paper;
 pub mod encode;
 pub mod scene;
 pub mod sort;

@@ -1,6 +1,7 @@
 //! The verbs of the `emc` binary, one module each; `main.rs` only parses and dispatches.
 
 pub mod build;
-pub mod layout;
-pub mod render;
 pub mod hwsim;
+pub mod layout;
+pub mod paper;
+pub mod render;
