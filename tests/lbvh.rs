@@ -369,6 +369,49 @@ fn parallel_and_single_thread_builds_are_bit_identical() {
 }
 
 #[test]
+fn one_pass_lbvh_equals_apetrei_and_emit() {
+    // `lbvh` runs the one-pass split sweep, `lbvh-apetrei` the bottom-up pass and the top-down
+    // emit: the same BVH for every leaf size (huge ones let the top nodes collapse too) and
+    // thread count (2 and 3 threads split the sweep into tasks below serial top nodes).
+    for (scene, n) in [("mixed", 60_000), ("hair", 40_000), ("city", 3_000)] {
+        let aabbs = builtin(scene, n);
+        for max_leaf in [1, 2, 8, 64, 1 << 20] {
+            for threads in [1, 2, 3] {
+                let what = format!("{scene} leaf {max_leaf} {threads} threads");
+                let s = build(
+                    &aabbs,
+                    opts(LayoutSpec::Emc64Var, Builder::Lbvh, threads, max_leaf),
+                );
+                let a = build(
+                    &aabbs,
+                    opts(
+                        LayoutSpec::Emc64Var,
+                        Builder::LbvhApetrei,
+                        threads,
+                        max_leaf,
+                    ),
+                );
+                assert_eq!(s.bvh, a.bvh, "{what}");
+                let (hs, ha) = (s.report.sah_headline, a.report.sah_headline);
+                assert!((hs - ha).abs() <= 1e-12 * ha, "{what}: {hs} vs {ha}");
+            }
+        }
+    }
+    let all_same = all_identical(50_000);
+    for threads in [1, 2] {
+        let s = build(
+            &all_same,
+            opts(LayoutSpec::Morton30, Builder::Lbvh, threads, 8),
+        );
+        let a = build(
+            &all_same,
+            opts(LayoutSpec::Morton30, Builder::LbvhApetrei, threads, 8),
+        );
+        assert_eq!(s.bvh, a.bvh, "all identical, {threads} threads");
+    }
+}
+
+#[test]
 fn atrbvh_keeps_the_leaves_and_never_raises_the_sah_of_the_lbvh() {
     // With one primitive per leaf the collapse changes nothing, so the collapsed figure is the
     // SAH (Ct = 1.2, Ci = 1) of the restructured Karras tree: never above the plain LBVH's.

@@ -16,6 +16,7 @@ use crate::bvh::binned_sah::{build_binned_sah, BinnedSahError, DEFAULT_BINS};
 use crate::bvh::collapse::{collapse_bvh, emit};
 use crate::bvh::karras::build_karras;
 use crate::bvh::refit::{gather_sorted, refit, CollapseParams, RadixTree};
+use crate::bvh::sweep::sweep_tree;
 use crate::bvh::{sah_cost, sah_headline, Bvh, SahConstants};
 use crate::scene::Scene;
 use crate::sort::{sort_pairs, RadixKey, SortError, SortReport};
@@ -29,7 +30,9 @@ pub const MAX_PRIMS: usize = (1 << 31) - 1;
 /// A hierarchy builder.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Builder {
-    /// Karras 2012 radix tree, then a parallel bottom-up refit (`lbvh`).
+    /// The Karras 2012 radix tree (`lbvh`), built with bounds and collapse decisions by the
+    /// one-pass split sweep of `bvh::sweep` (the same tree as Karras' top-down construction and
+    /// its bottom-up refit, which [`lbvh_tree`] keeps for comparison).
     Lbvh,
     /// Apetrei 2014: the same tree, topology and bounds in one bottom-up pass (`lbvh-apetrei`).
     LbvhApetrei,
@@ -474,6 +477,13 @@ fn lbvh_phases<K: RadixKey>(
         let bvh = atrbvh_phases(timed, &keys, aabbs, order, &k)?;
         return Ok((bvh.0, sort, bvh.1));
     }
+    if opts.builder == Builder::Lbvh {
+        let swept = timed.run(Phase::Hierarchy, || sweep_tree(&keys, order, aabbs, &k));
+        timed.pool.install(move || drop(keys));
+        let headline = timed.pool.install(|| swept.sah_headline(aabbs));
+        let bvh = timed.run(Phase::Collapse, || swept.emit());
+        return Ok((bvh, sort, headline));
+    }
     let (tree, sorted) = match opts.builder {
         Builder::LbvhApetrei => timed.run(Phase::Hierarchy, || {
             let sorted = gather_sorted(aabbs, &order);
@@ -496,7 +506,7 @@ fn lbvh_phases<K: RadixKey>(
     Ok((bvh, sort, headline))
 }
 
-/// `atrbvh` after the sort: Karras topology, bounds, the one-primitive-per-leaf BVH, treelet
+/// `atrbvh` after the sort: the Karras tree (by the sweep), the one-primitive-per-leaf BVH, treelet
 /// restructuring (phase `optimize`) and the SAH collapse; returns the BVH and the headline SAH
 /// of the restructured tree.
 fn atrbvh_phases<K: RadixKey>(
@@ -506,14 +516,10 @@ fn atrbvh_phases<K: RadixKey>(
     order: Vec<u32>,
     k: &CollapseParams,
 ) -> Result<(Bvh, f64), BuildError> {
-    let t = timed.run(Phase::Hierarchy, || build_karras(keys));
-    let sorted = timed.run(Phase::Bounds, || {
-        let sorted = gather_sorted(aabbs, &order);
-        refit(&t, &sorted, &CollapseParams::NONE);
-        sorted
+    let swept = timed.run(Phase::Hierarchy, || {
+        sweep_tree(keys, order, aabbs, &CollapseParams::NONE)
     });
-    let (mut plain, _) = timed.run(Phase::Collapse, || emit(&t, &sorted, order));
-    timed.pool.install(move || drop((t, sorted)));
+    let mut plain = timed.run(Phase::Collapse, || swept.emit());
     let cfg = AtrConfig::default();
     timed.run(Phase::Optimize, || restructure(&mut plain, aabbs, &cfg))?;
     let headline = timed.pool.install(|| sah_headline(&plain));

@@ -18,7 +18,7 @@ use crate::sort::RadixKey;
 ///   Δ(k) = ( k_k ⊕ k_{k+1} ,  k ⊕ (k+1) )    lexicographic
 /// ```
 #[inline(always)]
-fn dist<K: RadixKey>(keys: &[K], k: usize) -> (u64, u32) {
+pub(crate) fn dist<K: RadixKey>(keys: &[K], k: usize) -> (u64, u32) {
     let x = keys[k].widen() ^ keys[k + 1].widen();
     (x, (k as u32) ^ (k as u32 + 1))
 }

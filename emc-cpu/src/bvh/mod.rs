@@ -9,6 +9,7 @@ pub mod karras;
 pub mod node;
 pub mod refit;
 pub mod sah;
+pub mod sweep;
 pub mod validate;
 
 pub use node::{Bvh, Node};

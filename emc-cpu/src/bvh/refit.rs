@@ -122,6 +122,11 @@ unsafe impl Zeroable for AtomicU32 {}
 unsafe impl Zeroable for [AtomicU32; 2] {}
 // SAFETY: `Slot` holds only atomic integers (and padding), each valid at zero.
 unsafe impl Zeroable for Slot {}
+// SAFETY: all-zero bits are the float +0.0.
+unsafe impl Zeroable for f64 {}
+// SAFETY: `Node` is plain `f32`s and `u32`s (`#[repr(C)]`, no padding); zero is a valid inner
+// node value (it is always overwritten before the tree is used).
+unsafe impl Zeroable for super::node::Node {}
 
 /// `n` zero values from zeroed allocator memory (lazily faulted in by the OS).
 pub(crate) fn zeroed<T: Zeroable>(n: usize) -> Vec<T> {
