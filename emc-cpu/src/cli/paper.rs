@@ -21,7 +21,7 @@ pub struct PaperArgs {
     /// Output folder.
     #[arg(long, default_value = "out/paper")]
     pub out: PathBuf,
-    /// Small and fast: built-in scenes of 100k triangles, 128×128 primary rays, one timed trace.
+    /// Small and fast: built-in scenes of 100k triangles, 128×128 primary rays per configuration.
     #[arg(long)]
     pub quick: bool,
     /// Threads of every build and trace (at least 1).
@@ -36,7 +36,7 @@ pub struct PaperArgs {
     /// Triangles of the built-in scenes (default: 100k with --quick, else their own default).
     #[arg(long)]
     pub prims: Option<usize>,
-    /// Timed repeats of each trace, median reported (default 1 with --quick, else 3).
+    /// Timed repeats of each trace, median reported.
     #[arg(long)]
     pub repeat: Option<usize>,
 }

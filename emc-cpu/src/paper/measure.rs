@@ -130,63 +130,30 @@ pub fn build(
 ) -> Result<Built, MeasureError> {
     let threads = pool.current_num_threads();
     let collapse = CollapseParams::default();
-    let k = SahConstants {
-        ct: collapse.ct,
-        ci: collapse.ci,
-    };
     if variant.cube {
         return build_cube(scene, builder, variant.spec, pool);
     }
-    match builder {
-        PaperBuilder::Lbvh | PaperBuilder::BinnedSah => {
-            let b = if builder == PaperBuilder::Lbvh {
-                Builder::Lbvh
-            } else {
-                Builder::BinnedSah
-            };
-            let out = build_scene(
-                scene,
-                &BuildOptions {
-                    layout: variant.spec,
-                    builder: b,
-                    threads,
-                    collapse,
-                },
-            )?;
-            Ok(Built {
-                bvh: out.bvh,
-                build_ms: out.report.total().wall_ms,
-                layout: out.report.layout,
-                sah_headline: out.report.sah_headline,
-                sah_collapsed: out.report.sah_collapsed,
-            })
-        }
-        PaperBuilder::Atrbvh => {
-            let out = build_scene(
-                scene,
-                &BuildOptions {
-                    layout: variant.spec,
-                    builder: Builder::Lbvh,
-                    threads,
-                    collapse: CollapseParams::NONE,
-                },
-            )?;
-            let mut bvh = out.bvh;
-            let aabbs = out.aabbs;
-            let t1 = Instant::now();
-            pool.install(|| restructure(&mut bvh, &aabbs, &AtrConfig::default()))?;
-            let collapsed_bvh = pool.install(|| collapse_bvh(&bvh, &collapse));
-            let build_ms = out.report.total().wall_ms + t1.elapsed().as_secs_f64() * 1e3;
-            let headline = pool.install(|| sah_headline(&bvh));
-            Ok(Built {
-                sah_collapsed: sah_cost(&collapsed_bvh, k),
-                bvh: collapsed_bvh,
-                build_ms,
-                layout: out.report.layout,
-                sah_headline: headline,
-            })
-        }
-    }
+    let b = match builder {
+        PaperBuilder::Lbvh => Builder::Lbvh,
+        PaperBuilder::Atrbvh => Builder::Atrbvh,
+        PaperBuilder::BinnedSah => Builder::BinnedSah,
+    };
+    let out = build_scene(
+        scene,
+        &BuildOptions {
+            layout: variant.spec,
+            builder: b,
+            threads,
+            collapse,
+        },
+    )?;
+    Ok(Built {
+        bvh: out.bvh,
+        build_ms: out.report.total().wall_ms,
+        layout: out.report.layout,
+        sah_headline: out.report.sah_headline,
+        sah_collapsed: out.report.sah_collapsed,
+    })
 }
 
 /// The LBVH (or ATRBVH) of a cube-normalised frame, by the pipeline's own phases: boxes,

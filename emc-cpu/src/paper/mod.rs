@@ -65,7 +65,7 @@ impl PaperConfig {
             seed: crate::scene::builtin::DEFAULT_SEED,
             prims: quick.then_some(QUICK_PRIMS),
             rays: if quick { QUICK_RAYS } else { DEFAULT_RAYS },
-            repeats: if quick { 1 } else { 3 },
+            repeats: 3,
             progress: true,
         }
     }

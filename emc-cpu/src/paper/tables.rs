@@ -472,13 +472,14 @@ fn shared_md(res: &PaperResults, out: &mut String) {
         "\nOnly San Miguel corresponds to a seed scene (SC6), and as a different version: the \
          pbrt-v3 model here has 9.38 M triangles with most vegetation missing and a different \
          tessellation, against the seed's 7.88 M-triangle OBJ. The other shared scenes stand in \
-         for the seed's scenes that are not publicly available, so their changes are comparable \
-         only in sign and rough size. The seed also measured on a GPU with its own SAH constants \
-         and leaf sizes; our SAH is the protocol's BVH2 cost (Ct = Ci = 1) and the collapsed \
-         cost (Ct = 1.2, Ci = 1, leaves of at most 8). Where the sign disagrees with the seed, the \
-         reason is the scene: `emc64-var` wins where primitive sizes spread widely and the scene \
-         is flat or uneven (a size bit separates large from small triangles and the longest axis \
-         gets more bits); on compact, uniform scans the extra size bits cost position bits."
+         for seed scenes that are not publicly available, so their changes compare with the \
+         seed's only in sign and rough size. Known causes of disagreement besides the scenes: \
+         the seed measured on a GPU with its own SAH constants and leaf sizes, while our SAH is \
+         the protocol's BVH2 cost (Ct = Ci = 1, one triangle per leaf) and the collapsed cost \
+         (Ct = 1.2, Ci = 1, leaves of at most 8), and our camera and rays follow the shared \
+         protocol. `emc64-var` is a heuristic: its size bits and uneven axis bits help where \
+         triangle sizes spread widely or the scene is flat, and cost position bits on compact, \
+         uniform models."
     );
 }
 
@@ -492,8 +493,10 @@ pub fn markdown(res: &PaperResults) -> String {
          camera, 8×8 tiles) plus their 4 AO rays per hit. Build times are wall milliseconds \
          from triangles to the collapsed BVH; trace times are wall milliseconds (conversion to \
          the 4-wide BVH excluded). `morton63-cube` is `morton63` with positions normalised to \
-         the cube of the largest extent (built by the same phases through the pipeline's public \
-         functions).",
+         the cube of the largest extent; the build pipeline has no normalisation option, so this \
+         variant is assembled from the pipeline's public phases (boxes, frame, codes, radix \
+         sort, Karras tree with bottom-up refit, emission, plus restructuring for `atrbvh`): \
+         compare its SAH with `morton63`, its build time only roughly.",
         res.scenes
             .iter()
             .map(|s| format!("{} ({} triangles)", s.name, s.prims))
