@@ -17,8 +17,13 @@ fn variants(layout: &Layout, frame: &Frame) -> Vec<Encoder> {
         };
         for q in [QuantizePath::Scalar, QuantizePath::Avx2] {
             if let Ok(e) = enc.clone().with_quantize(q) {
-                // Both size paths of the AVX2 step (each is exact; dispatch picks one per CPU).
-                for s in [SizePath::Thresholds, SizePath::Formula] {
+                // Every size path of the AVX2 step (each is exact; dispatch picks one per CPU;
+                // the AVX-512 lookup only where the CPU has AVX-512).
+                for s in [
+                    SizePath::Thresholds,
+                    SizePath::Formula,
+                    SizePath::Avx512Lookup,
+                ] {
                     if let Ok(es) = e.clone().with_size_path(s) {
                         out.push(es);
                     }
@@ -83,6 +88,18 @@ fn avx2_path_is_reported_where_available() {
         assert_eq!(t.pipeline().size, Some(SizePath::Thresholds));
         let f = enc.clone().with_size_path(SizePath::Formula).unwrap();
         assert_eq!(f.pipeline().size, Some(SizePath::Formula));
+        // The AVX-512 lookup serves S <= 6 (emc64-var has 6) and is what dispatch picks when
+        // the CPU has AVX-512; without it, asking for it is an error.
+        let l = enc.clone().with_size_path(SizePath::Avx512Lookup);
+        if emc_core::cpu::has_avx512() {
+            assert_eq!(l.unwrap().pipeline().size, Some(SizePath::Avx512Lookup));
+            assert_eq!(p.size, Some(SizePath::Avx512Lookup));
+            // emc64-sort has 16 size bits: the lookup falls back to the formula.
+            let sort = Encoder::new(&"emc64-sort".parse().unwrap(), &frame);
+            assert_eq!(sort.pipeline().size, Some(SizePath::Formula));
+        } else {
+            assert!(l.is_err());
+        }
     } else {
         eprintln!("no AVX2 here: the SIMD comparisons below only cover the scalar path");
         assert_eq!(p.quantize, QuantizePath::Scalar);

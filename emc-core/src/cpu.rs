@@ -91,14 +91,40 @@ pub fn detect() -> CpuInfo {
 
 #[cfg(target_arch = "x86_64")]
 fn os_saves_ymm() -> bool {
+    xcr0() & 0b110 == 0b110
+}
+
+/// XCR0, the state components the OS saves; only called after CPUID reported OSXSAVE.
+#[cfg(target_arch = "x86_64")]
+fn xcr0() -> u64 {
     #[target_feature(enable = "xsave")]
-    unsafe fn xcr0() -> u64 {
+    unsafe fn read() -> u64 {
         // SAFETY: the caller checked OSXSAVE, so XGETBV with register 0 is defined.
         unsafe { core::arch::x86_64::_xgetbv(0) }
     }
     // SAFETY: only called after CPUID reported OSXSAVE, which implies XGETBV is usable.
-    let x = unsafe { xcr0() };
-    x & 0b110 == 0b110
+    unsafe { read() }
+}
+
+/// AVX-512 F, DQ, BW and VL present and enabled by the OS: CPUID leaf 7 EBX bits 16 (F),
+/// 17 (DQ), 30 (BW) and 31 (VL), plus XCR0 saving SSE/AVX state (bits 1-2) and the opmask
+/// and ZMM state (bits 5-7). Read with CPUID on each call (callers cache the answer).
+#[cfg(target_arch = "x86_64")]
+pub fn has_avx512() -> bool {
+    use core::arch::x86_64::{__cpuid, __cpuid_count};
+    if __cpuid(0).eax < 7 {
+        return false;
+    }
+    let osxsave = (__cpuid(1).ecx >> 27) & 1 == 1;
+    let ebx = __cpuid_count(7, 0).ebx;
+    let need = (1 << 16) | (1 << 17) | (1 << 30) | (1 << 31);
+    osxsave && ebx & need == need && xcr0() & 0b1110_0110 == 0b1110_0110
+}
+
+/// Off x86_64 there is no AVX-512.
+#[cfg(not(target_arch = "x86_64"))]
+pub fn has_avx512() -> bool {
+    false
 }
 
 /// Off x86_64 there is no `pdep` and no AVX2.

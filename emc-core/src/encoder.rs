@@ -147,8 +147,15 @@ impl Encoder {
             #[cfg(target_arch = "x86_64")]
             QuantizePath::Avx2 => {
                 let info = cpu::detect();
+                // AVX-512 serves size channels of up to 6 bits without sqrt or divide (the
+                // kernel falls back to the formula beyond); otherwise the per-CPU AVX2 choice.
+                let size = if cpu::has_avx512() {
+                    SizePath::Avx512Lookup
+                } else {
+                    SizePath::preferred(&info)
+                };
                 let kernel = if info.avx2 {
-                    crate::simd::avx2::Kernel::new(&self.quant, SizePath::preferred(&info))
+                    crate::simd::avx2::Kernel::new(&self.quant, size)
                 } else {
                     None
                 };
@@ -181,8 +188,10 @@ impl Encoder {
     }
 
     /// The same encoder with a forced size path for the AVX2 quantise step (for tests and
-    /// benchmarks); an error when the AVX2 path is not in use. Asking for thresholds on a
-    /// size channel wider than 8 bits (or none) keeps the formula, as dispatch would.
+    /// benchmarks); an error when the AVX2 path is not in use, or for
+    /// [`SizePath::Avx512Lookup`] without AVX-512. Asking for thresholds on a size channel
+    /// wider than 8 bits, the AVX-512 lookup on one wider than 6 (or either without a size
+    /// channel) keeps the formula, as dispatch would.
     pub fn with_size_path(mut self, size: SizePath) -> Result<Encoder, Error> {
         #[cfg(target_arch = "x86_64")]
         if self.kernel.is_some() {

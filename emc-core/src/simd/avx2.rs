@@ -29,40 +29,47 @@ const SIZE_THRESH: u8 = 1;
 const SIZE_EXACT_SQRT: u8 = 2;
 /// Size by the normative `f64` formula, linear transform.
 const SIZE_EXACT_LINEAR: u8 = 3;
+/// Size by the AVX-512 estimate and in-register threshold lookup (`S <= 6`, see
+/// [`super::avx512`]); only set when [`crate::cpu::has_avx512`] said yes.
+const SIZE_LOOKUP512: u8 = 4;
 
 /// Per-encoder constants of the AVX2 quantise step.
 #[derive(Clone, Debug)]
 pub(crate) struct Kernel {
     /// `2·origin` per axis.
-    o2: [f64; 3],
+    pub(super) o2: [f64; 3],
     /// `2^n / E / 2` per axis.
-    hs: [f64; 3],
+    pub(super) hs: [f64; 3],
     /// `2^n − 1` per channel (x, y, z, s) as `f64` (exact: at most 31 bits).
-    maxf: [f64; 4],
+    pub(super) maxf: [f64; 4],
     /// One of the `SIZE_*` modes.
-    size_mode: u8,
+    pub(super) size_mode: u8,
     /// `1 / D²` (only an estimate is derived from it).
-    inv_d2: f64,
+    pub(super) inv_d2: f64,
     /// `2^S` as `f32` and `2^S − 1` as `i32`.
-    s_scale_f32: f32,
-    s_top: i32,
+    pub(super) s_scale_f32: f32,
+    pub(super) s_top: i32,
     /// All ones when the transform is linear (selects `rcp` over the second `rsqrt`).
-    linear: bool,
+    pub(super) linear: bool,
     /// Frame diagonal `D` and `2^S` for the exact modes.
-    diag: f64,
-    s_scale: f64,
+    pub(super) diag: f64,
+    pub(super) s_scale: f64,
     /// The quantiser's thresholds `T(0..2^S)` (`T(0) = 0`), padded with +inf (never read).
-    thr: [f64; 256],
+    pub(super) thr: [f64; 256],
 }
 
 impl Kernel {
     /// Constants for a quantiser, or `None` when a channel has more than 31 bits (the
-    /// `f64x4 → i32x4` truncation covers `[0, 2^31)`; such layouts stay scalar).
+    /// `f64x4 → i32x4` truncation covers `[0, 2^31)`; such layouts stay scalar) or when
+    /// `size` is [`SizePath::Avx512Lookup`] and this CPU lacks AVX-512.
     /// `size` picks how an `S <= 8` size channel is computed (larger `S` always uses the
-    /// formula; `None` when there is no size channel).
+    /// formula, and so does the AVX-512 lookup for `S > 6`; `None` without a size channel).
     pub(crate) fn new(q: &Quantizer, size: SizePath) -> Option<Kernel> {
         let max = q.max();
         if max.iter().any(|&m| m > i32::MAX as u64) {
+            return None;
+        }
+        if size == SizePath::Avx512Lookup && !crate::cpu::has_avx512() {
             return None;
         }
         let s = q.size_bits();
@@ -87,6 +94,10 @@ impl Kernel {
                 k.thr[..t.len()].copy_from_slice(t);
                 k.size_mode = SIZE_THRESH;
             }
+            Some(t) if s <= super::avx512::LOOKUP_BITS && size == SizePath::Avx512Lookup => {
+                k.thr[..t.len()].copy_from_slice(t);
+                k.size_mode = SIZE_LOOKUP512;
+            }
             _ => {
                 k.size_mode = match q.transform() {
                     SizeTransform::Sqrt => SIZE_EXACT_SQRT,
@@ -102,6 +113,7 @@ impl Kernel {
         match self.size_mode {
             SIZE_NONE => None,
             SIZE_THRESH => Some(SizePath::Thresholds),
+            SIZE_LOOKUP512 => Some(SizePath::Avx512Lookup),
             _ => Some(SizePath::Formula),
         }
     }
@@ -133,6 +145,10 @@ impl Kernel {
                     }
                     SIZE_EXACT_SQRT => {
                         const $s: u8 = SIZE_EXACT_SQRT;
+                        $e
+                    }
+                    SIZE_LOOKUP512 => {
+                        const $s: u8 = SIZE_LOOKUP512;
                         $e
                     }
                     _ => {
@@ -181,6 +197,11 @@ impl Kernel {
                     }),
                     _ => 0,
                 }
+            }
+            Expander::Pdep(p) if self.size_mode == SIZE_LOOKUP512 => {
+                // SAFETY: the lookup mode is only set after `has_avx512()` said yes (see
+                // `Kernel::new`); BMI2 and `out` by the caller; `n4` groups lie in `boxes`.
+                unsafe { super::avx512::run_pdep::<W32>(self, p.masks(), src, n4, out) }
             }
             Expander::Pdep(_) => by_size!(self.size_mode, S =>
                         // SAFETY: AVX2 (+ BMI2 for pdep) and `out` by the caller; `n4` groups lie in `boxes`.
@@ -234,13 +255,18 @@ fn low_dwords(v: __m256i) -> __m128i {
     _mm_castps_si128(_mm_shuffle_ps::<0b10_00_10_00>(lo, hi))
 }
 
-/// Quantise four boxes: `[qx, qy, qz, qs]`, each `i32x4` (`qs` is 0 when `SIZE` is none).
+/// The position channels of four boxes (`[qx, qy, qz]`, each `i32x4`) and, when `D2`, their
+/// squared diagonals `d2 = (dx·dx + dy·dy) + dz·dz` when `with_d2` (else zero).
 ///
 /// # Safety
 /// `p` must point at four consecutive `Aabb` (24 readable `f32`).
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn quantize4<const SIZE: u8>(k: &Kernel, p: *const f32) -> [__m128i; 4] {
+pub(super) unsafe fn positions4(
+    k: &Kernel,
+    p: *const f32,
+    with_d2: bool,
+) -> ([__m128i; 3], __m256d) {
     // SAFETY: offsets 0..=22 + 4 lanes stay inside the 24 floats of the four boxes.
     let (a0, b0, a1, b1, a2, b2, a3, b3) = unsafe {
         (
@@ -284,8 +310,8 @@ unsafe fn quantize4<const SIZE: u8>(k: &Kernel, p: *const f32) -> [__m128i; 4] {
     let qx = position(_mm256_add_pd(lx, hx), k.o2[0], k.hs[0], k.maxf[0]);
     let qy = position(_mm256_add_pd(ly, hy), k.o2[1], k.hs[1], k.maxf[1]);
     let qz = position(_mm256_add_pd(lz, hz), k.o2[2], k.hs[2], k.maxf[2]);
-    if SIZE == SIZE_NONE {
-        return [qx, qy, qz, _mm_setzero_si128()];
+    if !with_d2 {
+        return ([qx, qy, qz], _mm256_setzero_pd());
     }
     let dx = _mm256_sub_pd(hx, lx);
     let dy = _mm256_sub_pd(hy, ly);
@@ -294,7 +320,25 @@ unsafe fn quantize4<const SIZE: u8>(k: &Kernel, p: *const f32) -> [__m128i; 4] {
         _mm256_add_pd(_mm256_mul_pd(dx, dx), _mm256_mul_pd(dy, dy)),
         _mm256_mul_pd(dz, dz),
     );
+    ([qx, qy, qz], d2)
+}
+
+/// Quantise four boxes: `[qx, qy, qz, qs]`, each `i32x4` (`qs` is 0 when `SIZE` is none).
+///
+/// # Safety
+/// `p` must point at four consecutive `Aabb` (24 readable `f32`); the lookup mode also needs
+/// AVX-512 (which [`Kernel::new`] checked before setting it).
+#[target_feature(enable = "avx2")]
+#[inline]
+unsafe fn quantize4<const SIZE: u8>(k: &Kernel, p: *const f32) -> [__m128i; 4] {
+    // SAFETY: `p` by the contract above.
+    let ([qx, qy, qz], d2) = unsafe { positions4(k, p, SIZE != SIZE_NONE) };
+    if SIZE == SIZE_NONE {
+        return [qx, qy, qz, _mm_setzero_si128()];
+    }
     let qs = match SIZE {
+        // SAFETY: the lookup mode is only set after `has_avx512()` said yes.
+        SIZE_LOOKUP512 => unsafe { super::avx512::size4(k, d2) },
         // SAFETY: AVX2 by the target feature; `size_thresholds` keeps its gather in bounds.
         SIZE_THRESH => unsafe { size_thresholds(k, d2) },
         SIZE_EXACT_SQRT => {

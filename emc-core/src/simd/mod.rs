@@ -13,6 +13,8 @@ use crate::expand::Backend;
 
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx2;
+#[cfg(target_arch = "x86_64")]
+pub(crate) mod avx512;
 
 /// How a batch quantises its boxes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
@@ -68,7 +70,7 @@ impl fmt::Display for ExpandPath {
 
 /// How the AVX2 quantise step computes a size channel of at most 8 bits.
 ///
-/// Both give [`Quantizer::size_by_thresholds`](crate::Quantizer::size_by_thresholds) bit for
+/// All give [`Quantizer::size_by_thresholds`](crate::Quantizer::size_by_thresholds) bit for
 /// bit. Measured on an AMD family 0x19 (Zen 4) machine, `emc64-var` pipeline with pdep, in
 /// cache: formula 3.4 ns/code, thresholds 3.9 ns/code — the `f64` divider is fast there. The
 /// threshold path avoids `sqrtpd`/`divpd`, whose throughput is several times lower on AMD
@@ -79,6 +81,11 @@ pub enum SizePath {
     Thresholds,
     /// The normative `f64` formula: `sqrt`, divide by `D`, `sqrt` (or `× 2^S / D`).
     Formula,
+    /// Eight boxes at a time in AVX-512 `f64` lanes: an `rsqrt14`/`rcp14` estimate fixed up
+    /// with one comparison against thresholds held in registers (`vpermt2pd`, no memory
+    /// reads). Needs AVX-512 F/DQ/BW/VL and `S <= 6` (64 thresholds); otherwise the formula.
+    /// Measured on Zen 4 (`emc64-var`, pdep): see `emc layout --ratios`.
+    Avx512Lookup,
 }
 
 impl SizePath {
@@ -98,6 +105,9 @@ impl fmt::Display for SizePath {
         f.write_str(match self {
             SizePath::Thresholds => "size by f32 estimate + threshold fix-up",
             SizePath::Formula => "size by the f64 formula",
+            SizePath::Avx512Lookup => {
+                "size by avx-512 f64x8 rsqrt14 estimate + in-register threshold lookup"
+            }
         })
     }
 }
