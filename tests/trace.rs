@@ -12,10 +12,12 @@ use emc_cpu::bvh::{Bvh, Node};
 use emc_cpu::scene::{self, Scene, SceneOptions};
 use emc_cpu::trace::image::{shade, Image, Shading};
 use emc_cpu::trace::intersect::{brute_force_closest, brute_force_occluded, slab_test, PreRay};
-use emc_cpu::trace::traverse::{closest, node_test_scalar, node_test_simd, occluded};
-use emc_cpu::trace::wide::{WideNode, MAX_DEPTH, WIDTH};
+use emc_cpu::trace::traverse::{
+    avx2_available, closest, node_test_avx2, node_test_scalar, node_test_simd, occluded,
+};
+use emc_cpu::trace::wide::{WideNodeN, MAX_DEPTH};
 use emc_cpu::trace::workload::{
-    primary_rays, protocol_counts, trace_closest, Camera, CameraMode, SceneFrame,
+    primary_rays, protocol_counts, trace_closest, trace_occluded, Camera, CameraMode, SceneFrame,
 };
 use emc_cpu::trace::{
     Accel, BuildOptions, Hit, NodeTest, Preset, Ray, TraceError, TraceStats, WideBvh,
@@ -230,21 +232,34 @@ fn check_against_brute_force(name: &str, tris: &[[Vec3; 3]], bvh: &WideBvh, rays
     check_against(name, bvh, rays, &brute_force(tris, rays));
 }
 
-/// Check closest hit (t bits and id) and any hit against precomputed brute-force answers.
+/// Check closest hit (t bits and id) and any hit against precomputed brute-force answers, on
+/// the 4-wide (SSE) and the 8-wide (AVX2) tree.
 fn check_against(name: &str, bvh: &WideBvh, rays: &[Ray], want: &[(Option<Hit>, bool)]) {
+    for kind in [NodeTest::Simd, NodeTest::Avx2] {
+        check_against_with(&format!("{name} {kind:?}"), bvh, rays, want, kind);
+    }
+}
+
+fn check_against_with(
+    name: &str,
+    bvh: &WideBvh,
+    rays: &[Ray],
+    want: &[(Option<Hit>, bool)],
+    kind: NodeTest,
+) {
     use rayon::prelude::*;
     let bad: Vec<String> = rays
         .par_iter()
         .zip(want)
         .enumerate()
         .filter_map(|(i, (r, &(want, want_occ)))| {
-            let got = closest::<false>(bvh, r, NodeTest::Simd, &mut TraceStats::default());
+            let got = closest::<false>(bvh, r, kind, &mut TraceStats::default());
             let same = match (want, got) {
                 (None, None) => true,
                 (Some(a), Some(b)) => a.t.to_bits() == b.t.to_bits() && a.prim == b.prim,
                 _ => false,
             };
-            let occ = occluded::<false>(bvh, r, NodeTest::Simd, &mut TraceStats::default());
+            let occ = occluded::<false>(bvh, r, kind, &mut TraceStats::default());
             (!same || occ != want.is_some() || occ != want_occ)
                 .then(|| format!("ray {i} {r:?}: want {want:?} got {got:?} occluded {occ}"))
         })
@@ -274,11 +289,25 @@ fn builtin(name: &str, prims: usize) -> Scene {
 
 #[test]
 fn simd_node_test_equals_scalar_bit_for_bit() {
+    check_node_test::<4>(node_test_simd);
+}
+
+#[test]
+fn avx2_node_test_equals_scalar_bit_for_bit() {
+    if !avx2_available() {
+        println!("no AVX2 on this CPU: node_test_avx2 is the scalar test itself");
+    }
+    check_node_test::<8>(node_test_avx2);
+}
+
+/// Random and adversarial nodes and rays (±0 components, origins on planes, unused lanes):
+/// `test` gives the scalar test's mask and entry distances, bit for bit.
+fn check_node_test<const W: usize>(test: fn(&WideNodeN<W>, &PreRay, f32) -> (u32, [f32; W])) {
     let mut rng = Rng(7);
     let coords = [-2.0f32, -1.0, -0.0, 0.0, 0.5, 1.0, 3.0];
     for k in 0..200_000 {
-        let mut node = WideNode::empty();
-        for lane in 0..WIDTH {
+        let mut node = WideNodeN::<W>::empty();
+        for lane in 0..W {
             for a in 0..3 {
                 let (x, y) = if k % 2 == 0 {
                     (coords[rng.below(7)], coords[rng.below(7)])
@@ -292,8 +321,8 @@ fn simd_node_test_equals_scalar_bit_for_bit() {
         if k % 7 == 0 {
             // An unused lane.
             for a in 0..3 {
-                node.planes[2 * a][3] = f32::INFINITY;
-                node.planes[2 * a + 1][3] = f32::NEG_INFINITY;
+                node.planes[2 * a][W - 1] = f32::INFINITY;
+                node.planes[2 * a + 1][W - 1] = f32::NEG_INFINITY;
             }
         }
         let o = if k % 3 == 0 {
@@ -326,12 +355,12 @@ fn simd_node_test_equals_scalar_bit_for_bit() {
             f32::INFINITY
         };
         let (m_ref, d_ref) = node_test_scalar(&node, &r, tfar);
-        let (m_simd, d_simd) = node_test_simd(&node, &r, tfar);
+        let (m_simd, d_simd) = test(&node, &r, tfar);
         assert_eq!(
             m_ref, m_simd,
             "mask differs for ray {o:?} {d:?} node {node:?}"
         );
-        for lane in 0..WIDTH {
+        for lane in 0..W {
             if m_ref & (1 << lane) != 0 {
                 assert_eq!(d_ref[lane].to_bits(), d_simd[lane].to_bits());
                 assert!(!d_ref[lane].is_nan());
@@ -546,21 +575,32 @@ fn scalar_and_simd_traversals_agree_including_work_counters() {
     let tris = triangles(&s);
     let rays = test_rays(&tris, 20_000, 5);
     for (b, bvh) in all_bvhs(&tris) {
-        let mut s1 = TraceStats::default();
-        let mut s2 = TraceStats::default();
-        for r in &rays {
-            let a = closest::<true>(&bvh, r, NodeTest::Scalar, &mut s1);
-            let c = closest::<true>(&bvh, r, NodeTest::Simd, &mut s2);
-            assert_eq!(
-                a.map(|h| (h.t.to_bits(), h.prim)),
-                c.map(|h| (h.t.to_bits(), h.prim))
-            );
-            assert_eq!(
-                occluded::<true>(&bvh, r, NodeTest::Scalar, &mut s1),
-                occluded::<true>(&bvh, r, NodeTest::Simd, &mut s2)
-            );
+        for (scalar, simd) in [
+            (NodeTest::Scalar, NodeTest::Simd),
+            (NodeTest::Scalar8, NodeTest::Avx2),
+        ] {
+            let mut s1 = TraceStats::default();
+            let mut s2 = TraceStats::default();
+            for r in &rays {
+                let a = closest::<true>(&bvh, r, scalar, &mut s1);
+                let c = closest::<true>(&bvh, r, simd, &mut s2);
+                let four = closest::<false>(&bvh, r, NodeTest::Scalar, &mut TraceStats::default());
+                assert_eq!(
+                    a.map(|h| (h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits())),
+                    c.map(|h| (h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits()))
+                );
+                // Both trees give the same closest hit.
+                assert_eq!(
+                    a.map(|h| (h.t.to_bits(), h.prim)),
+                    four.map(|h| (h.t.to_bits(), h.prim))
+                );
+                assert_eq!(
+                    occluded::<true>(&bvh, r, scalar, &mut s1),
+                    occluded::<true>(&bvh, r, simd, &mut s2)
+                );
+            }
+            assert_eq!(s1, s2, "{b} {simd:?}");
         }
-        assert_eq!(s1, s2, "{b}");
     }
 }
 
@@ -644,6 +684,22 @@ fn closed_icosphere_is_watertight() {
         rays[escaped[0]]
     );
     assert!(occ.iter().all(|&o| o), "an occlusion ray escaped");
+    // The API traces the fastest tree; the other tree must be just as closed.
+    let other = if NodeTest::fastest() == NodeTest::Avx2 {
+        NodeTest::Simd
+    } else {
+        NodeTest::Avx2
+    };
+    let (hits, _) = trace_closest(a.wide_bvh(), &rays, other, false);
+    let (occ, _) = trace_occluded(a.wide_bvh(), &rays, other, false);
+    assert!(
+        hits.iter().all(|h| h.is_some()),
+        "a ray escaped ({other:?})"
+    );
+    assert!(
+        occ.iter().all(|&o| o),
+        "an occlusion ray escaped ({other:?})"
+    );
 }
 
 // ---------------------------------------------------------------------------------------------

@@ -54,6 +54,10 @@ pub struct RenderArgs {
     /// Pixel shading: normal or ao.
     #[arg(long, default_value = "normal")]
     pub shading: String,
+    /// Tree width to trace: 4 (SSE) or 8 (AVX2, scalar without it); default: 8 when the CPU
+    /// has AVX2, else 4.
+    #[arg(long)]
+    pub width: Option<usize>,
     /// Trace each ray set this many times and report the run with the median CPU time.
     #[arg(long, default_value_t = 1)]
     pub repeat: usize,
@@ -192,29 +196,45 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         args.threads
     );
     println!(
-        "build + collapse to 4-wide: {build_ms:.1} ms wall; {} wide nodes, {} leaves, depth {}, {:.1} MiB",
+        "build + collapse to 4- and 8-wide: {build_ms:.1} ms wall; {} / {} wide nodes, {} leaves, depth {} / {}, {:.1} MiB",
         w.nodes.len(),
+        w.nodes8.len(),
         w.leaves,
         w.depth,
+        w.depth8,
         w.memory_bytes() as f64 / (1 << 20) as f64
+    );
+    let kind = match args.width {
+        None => NodeTest::fastest(),
+        Some(4) => NodeTest::Simd,
+        Some(8) => NodeTest::Avx2,
+        Some(n) => bail!("--width {n}: the tracer has 4- and 8-wide trees"),
+    };
+    println!(
+        "traversal: {}-wide, {:?} node test{}",
+        kind.width(),
+        kind,
+        if kind == NodeTest::Avx2 && !crate::trace::traverse::avx2_available() {
+            " (no AVX2 on this CPU: scalar fallback)"
+        } else {
+            ""
+        }
     );
     let frame = SceneFrame::of(tris);
     let cam = Camera::protocol(&frame, mode);
     let primary = pool.install(|| primary_rays(&cam, args.res, args.res));
     let ((hits, _), tp) = median_run(&pool, args.repeat, || {
-        trace_closest(w, &primary, NodeTest::Simd, false)
+        trace_closest(w, &primary, kind, false)
     });
-    let (_, sp) = pool.install(|| trace_closest(w, &primary, NodeTest::Simd, true));
+    let (_, sp) = pool.install(|| trace_closest(w, &primary, kind, true));
     let (ao, _) = pool.install(|| all_ao_rays(&primary, &hits, tris, frame.diag));
-    let ((occ, _), ta) = median_run(&pool, args.repeat, || {
-        trace_occluded(w, &ao, NodeTest::Simd, false)
-    });
-    let (_, sa) = pool.install(|| trace_occluded(w, &ao, NodeTest::Simd, true));
+    let ((occ, _), ta) = median_run(&pool, args.repeat, || trace_occluded(w, &ao, kind, false));
+    let (_, sa) = pool.install(|| trace_occluded(w, &ao, kind, true));
     let bounce = pool.install(|| all_bounce_rays(&primary, &hits, tris, frame.diag));
     let (_, tb) = median_run(&pool, args.repeat, || {
-        trace_closest(w, &bounce, NodeTest::Simd, false)
+        trace_closest(w, &bounce, kind, false)
     });
-    let (_, sb) = pool.install(|| trace_closest(w, &bounce, NodeTest::Simd, true));
+    let (_, sb) = pool.install(|| trace_closest(w, &bounce, kind, true));
     let n_hits = hits.iter().filter(|h| h.is_some()).count();
     let n_occ = occ.iter().filter(|&&o| o).count();
     println!(

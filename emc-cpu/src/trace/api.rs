@@ -170,13 +170,23 @@ impl Accel {
     /// non-finite or zero direction, NaN interval).
     #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        closest::<false>(&self.bvh, ray, NodeTest::Simd, &mut TraceStats::default())
+        closest::<false>(
+            &self.bvh,
+            ray,
+            NodeTest::fastest(),
+            &mut TraceStats::default(),
+        )
     }
 
     /// True when `ray` hits anything in `[tnear, tfar]`.
     #[inline]
     pub fn occluded(&self, ray: &Ray) -> bool {
-        occluded::<false>(&self.bvh, ray, NodeTest::Simd, &mut TraceStats::default())
+        occluded::<false>(
+            &self.bvh,
+            ray,
+            NodeTest::fastest(),
+            &mut TraceStats::default(),
+        )
     }
 
     /// Closest hits of many rays, in parallel; one answer per ray, in order.

@@ -83,7 +83,7 @@ pub fn shade(
                             crate::trace::traverse::occluded::<false>(
                                 bvh,
                                 r,
-                                crate::trace::NodeTest::Simd,
+                                crate::trace::NodeTest::fastest(),
                                 &mut Default::default(),
                             )
                         })

@@ -1,13 +1,16 @@
-//! Single-ray traversal of a [`WideBvh`]: closest hit and any hit, with an SSE node test (one
-//! slab test of all four children per instruction) and a scalar node test that is its
-//! bit-exact reference. Children are visited nearest first; a node is skipped when its entry
+//! Single-ray traversal of a [`WideBvh`]: closest hit and any hit, on the 4-wide tree with an
+//! SSE node test or on the 8-wide tree with an AVX2 node test (one slab test of all children
+//! per instruction), each with a scalar node test as its bit-exact reference. Children are
+//! visited nearest first; a node is skipped when its entry
 //! distance exceeds the best hit so far (with a rounding slack, [`CULL_SLACK`] plus an
 //! absolute part; `t ≤ best` is kept, so ties still reach lower ids).
 
 use core::mem::MaybeUninit;
 
 use crate::trace::intersect::{better, slab_test, triangle_test, Hit, PreRay, Ray};
-use crate::trace::wide::{TriPacket, WideBvh, WideNode, EMPTY, LEAF, STACK_CAPACITY, WIDTH};
+use crate::trace::wide::{
+    TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, EMPTY, LEAF, STACK_CAPACITY8, WIDTH, WIDTH8,
+};
 
 /// Relative slack of distance culling, 2^-12. A node is skipped only when its entry distance
 /// exceeds `slack(best)` (or `slack(tfar)`): box entries and triangle distances are rounded
@@ -57,24 +60,70 @@ impl TraceStats {
     }
 }
 
-/// Which node test a traversal uses.
+/// Which tree and node test a traversal uses. All four give the same hits, bit for bit; the
+/// two of one tree also do the same work (same node and triangle counts).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum NodeTest {
-    /// Four scalar [`slab_test`]s (the reference).
+    /// 4-wide tree, four scalar [`slab_test`]s per node (the reference of `Simd`).
     Scalar,
-    /// One SSE slab test of all four lanes (x86-64; elsewhere it falls back to `Scalar`).
+    /// 4-wide tree, one SSE slab test of all four lanes (x86-64; elsewhere it falls back to
+    /// `Scalar`).
     Simd,
+    /// 8-wide tree, eight scalar [`slab_test`]s per node (the reference of `Avx2`).
+    Scalar8,
+    /// 8-wide tree, one AVX2 slab test of all eight lanes; falls back to `Scalar8` when the
+    /// CPU lacks AVX2 (detected at run time).
+    Avx2,
 }
 
-/// Result of testing one node: a bit per entered lane and each lane's entry distance.
+impl NodeTest {
+    /// The fastest test this CPU runs: `Avx2` when it has AVX2, else `Simd`.
+    pub fn fastest() -> NodeTest {
+        if avx2_available() {
+            NodeTest::Avx2
+        } else {
+            NodeTest::Simd
+        }
+    }
+
+    /// Children per node of the tree this test traverses (4 or 8).
+    pub fn width(self) -> usize {
+        match self {
+            NodeTest::Scalar | NodeTest::Simd => WIDTH,
+            NodeTest::Scalar8 | NodeTest::Avx2 => WIDTH8,
+        }
+    }
+}
+
+/// True when the CPU runs AVX2 (checked once, then cached by the standard library).
+#[inline(always)]
+pub fn avx2_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// Result of testing one 4-wide node: a bit per entered lane and each lane's entry distance.
 pub type LaneHits = (u32, [f32; WIDTH]);
+
+/// Result of testing one `W`-wide node.
+pub type LaneHitsN<const W: usize> = (u32, [f32; W]);
 
 /// The scalar node test: lane `i` entered iff `slab_test` of child `i` passes (its distance
 /// is then the entry distance; a missed lane's distance is unspecified).
 #[inline(always)]
-pub fn node_test_scalar(node: &WideNode, r: &PreRay, tfar: f32) -> LaneHits {
+pub fn node_test_scalar<const W: usize>(
+    node: &WideNodeN<W>,
+    r: &PreRay,
+    tfar: f32,
+) -> LaneHitsN<W> {
     let mut mask = 0;
-    let mut dist = [0.0; WIDTH];
+    let mut dist = [0.0; W];
     for (lane, d) in dist.iter_mut().enumerate() {
         let p = &node.planes;
         let min = [p[0][lane], p[2][lane], p[4][lane]];
@@ -93,7 +142,104 @@ pub fn node_test_scalar(node: &WideNode, r: &PreRay, tfar: f32) -> LaneHits {
 /// The SIMD node test (SSE on x86-64, else the scalar one); same mask, and the same entry
 /// distances on entered lanes, as [`node_test_scalar`].
 pub fn node_test_simd(node: &WideNode, r: &PreRay, tfar: f32) -> LaneHits {
-    Tester::new(NodeTest::Simd, r).test(node, r, tfar)
+    #[cfg(target_arch = "x86_64")]
+    {
+        sse::SseRay::new(r).test(node, tfar)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        node_test_scalar(node, r, tfar)
+    }
+}
+
+/// The AVX2 node test of an 8-wide node (the scalar one without AVX2); same mask, and the same
+/// entry distances on entered lanes, as [`node_test_scalar`].
+pub fn node_test_avx2(node: &WideNode8, r: &PreRay, tfar: f32) -> LaneHitsN<WIDTH8> {
+    #[cfg(target_arch = "x86_64")]
+    if avx2_available() {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        return unsafe { avx::node_test(node, r, tfar) };
+    }
+    node_test_scalar(node, r, tfar)
+}
+
+#[cfg(target_arch = "x86_64")]
+mod avx {
+    use core::arch::x86_64::*;
+
+    use super::LaneHitsN;
+    use crate::trace::intersect::{PreRay, FAR_WIDEN};
+    use crate::trace::wide::{WideNode8, WIDTH8};
+
+    /// Ray constants broadcast to all eight lanes.
+    #[derive(Clone, Copy, Debug)]
+    pub struct AvxRay {
+        org: [__m256; 3],
+        inv: [__m256; 3],
+        /// Plane row of the near plane per axis (`2a` or `2a + 1`).
+        near: [usize; 3],
+        tnear: __m256,
+        widen: __m256,
+    }
+
+    impl AvxRay {
+        /// The broadcast constants of `r`. Only call with AVX2 present (inlined into an
+        /// AVX2 function).
+        #[inline(always)]
+        pub fn new(r: &PreRay) -> AvxRay {
+            let near = [0, 1, 2].map(|a| 2 * a + r.near_is_max[a] as usize);
+            // SAFETY: only reached from functions that run with AVX2 enabled and detected;
+            // these intrinsics only move values.
+            unsafe {
+                AvxRay {
+                    org: r.org.map(|o| _mm256_set1_ps(o)),
+                    inv: r.inv.map(|i| _mm256_set1_ps(i)),
+                    near,
+                    tnear: _mm256_set1_ps(r.tnear),
+                    widen: _mm256_set1_ps(FAR_WIDEN),
+                }
+            }
+        }
+
+        /// The eight slab tests of `node`, operation for operation the same as `slab_test`
+        /// (`vmaxps`/`vminps` discard NaN exactly as `max_sse`/`min_sse` do).
+        #[inline(always)]
+        pub fn test(&self, node: &WideNode8, tfar: f32) -> LaneHitsN<WIDTH8> {
+            // SAFETY: only reached with AVX2 enabled and detected. The aligned loads read
+            // `[f32; 8]` rows at 32-byte multiples inside a 64-byte aligned node; the unaligned
+            // store writes the 8 floats of `dist`.
+            unsafe {
+                let mut t0 = self.tnear;
+                let mut t1 = _mm256_set1_ps(tfar);
+                for a in 0..3 {
+                    let n = self.near[a];
+                    let f = n ^ 1;
+                    let np = _mm256_load_ps(node.planes[n].as_ptr());
+                    let fp = _mm256_load_ps(node.planes[f].as_ptr());
+                    let tn = _mm256_mul_ps(_mm256_sub_ps(np, self.org[a]), self.inv[a]);
+                    let tf = _mm256_mul_ps(
+                        _mm256_mul_ps(_mm256_sub_ps(fp, self.org[a]), self.inv[a]),
+                        self.widen,
+                    );
+                    t0 = _mm256_max_ps(tn, t0);
+                    t1 = _mm256_min_ps(tf, t1);
+                }
+                let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1)) as u32;
+                let mut dist = [0.0f32; 8];
+                _mm256_storeu_ps(dist.as_mut_ptr(), t0);
+                (mask, dist)
+            }
+        }
+    }
+
+    /// One AVX2 node test (for the equality tests).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn node_test(node: &WideNode8, r: &PreRay, tfar: f32) -> LaneHitsN<WIDTH8> {
+        AvxRay::new(r).test(node, tfar)
+    }
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -252,80 +398,102 @@ struct PacketHits {
     det: [f32; WIDTH],
 }
 
-/// The node test of one ray, chosen once per ray. It lives on the stack of one traversal,
-/// so the size gap between the variants costs nothing.
-#[derive(Clone, Copy, Debug)]
-#[allow(clippy::large_enum_variant)]
-enum Tester {
-    Scalar,
+/// The per-ray node and packet tests of one traversal: a `W`-wide node test plus the
+/// (4-wide) triangle packet test.
+trait Lanes<const W: usize> {
+    /// Test the `W` child boxes of `node` against `[tnear, tfar]`.
+    fn test(&self, node: &WideNodeN<W>, r: &PreRay, tfar: f32) -> LaneHitsN<W>;
+    /// The SSE packet test, or `None` for the scalar one.
     #[cfg(target_arch = "x86_64")]
-    Sse(sse::SseRay),
-}
-
-impl Tester {
-    #[inline(always)]
-    fn new(kind: NodeTest, r: &PreRay) -> Tester {
-        match kind {
-            NodeTest::Scalar => Tester::Scalar,
-            #[cfg(target_arch = "x86_64")]
-            NodeTest::Simd => Tester::Sse(sse::SseRay::new(r)),
-            #[cfg(not(target_arch = "x86_64"))]
-            NodeTest::Simd => Tester::Scalar,
-        }
-    }
-
-    #[inline(always)]
-    fn test(&self, node: &WideNode, r: &PreRay, tfar: f32) -> LaneHits {
-        match self {
-            Tester::Scalar => node_test_scalar(node, r, tfar),
-            #[cfg(target_arch = "x86_64")]
-            Tester::Sse(s) => s.test(node, tfar),
-        }
-    }
+    fn sse(&self) -> Option<&sse::SseRay>;
 
     /// Call `f(t, u, v, id)` for every triangle of packet `p` hit in `[tnear, tmax]`, in
-    /// lane order; the same hits, bit for bit, for both testers.
+    /// lane order; the same hits, bit for bit, for every tester.
     #[inline(always)]
     fn packet(&self, r: &PreRay, p: &TriPacket, tmax: f32, mut f: impl FnMut(f32, f32, f32, u32)) {
-        let real = (1u32 << p.count) - 1;
-        match self {
-            Tester::Scalar => {
-                for lane in 0..p.count as usize {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(s) = self.sse() {
+            let real = (1u32 << p.count) - 1;
+            let h = s.packet(p, tmax);
+            let mut m = (h.hit | h.redo) & real;
+            while m != 0 {
+                let lane = m.trailing_zeros() as usize;
+                m &= m - 1;
+                if h.redo & (1 << lane) != 0 {
                     if let Some((t, u, v)) = triangle_test(r, &p.lane(lane), tmax) {
                         f(t, u, v, p.id[lane]);
                     }
+                } else {
+                    let inv_det = 1.0 / h.det[lane];
+                    f(
+                        h.t[lane],
+                        h.v[lane] * inv_det,
+                        h.w[lane] * inv_det,
+                        p.id[lane],
+                    );
                 }
             }
-            #[cfg(target_arch = "x86_64")]
-            Tester::Sse(s) => {
-                let h = s.packet(p, tmax);
-                let mut m = (h.hit | h.redo) & real;
-                while m != 0 {
-                    let lane = m.trailing_zeros() as usize;
-                    m &= m - 1;
-                    if h.redo & (1 << lane) != 0 {
-                        if let Some((t, u, v)) = triangle_test(r, &p.lane(lane), tmax) {
-                            f(t, u, v, p.id[lane]);
-                        }
-                    } else {
-                        let inv_det = 1.0 / h.det[lane];
-                        f(
-                            h.t[lane],
-                            h.v[lane] * inv_det,
-                            h.w[lane] * inv_det,
-                            p.id[lane],
-                        );
-                    }
-                }
+            return;
+        }
+        for lane in 0..p.count as usize {
+            if let Some((t, u, v)) = triangle_test(r, &p.lane(lane), tmax) {
+                f(t, u, v, p.id[lane]);
             }
         }
+    }
+}
+
+/// The scalar reference tests, for either width.
+struct ScalarLanes;
+
+impl<const W: usize> Lanes<W> for ScalarLanes {
+    #[inline(always)]
+    fn test(&self, node: &WideNodeN<W>, r: &PreRay, tfar: f32) -> LaneHitsN<W> {
+        node_test_scalar(node, r, tfar)
+    }
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    fn sse(&self) -> Option<&sse::SseRay> {
+        None
+    }
+}
+
+/// SSE node and packet tests of the 4-wide tree.
+#[cfg(target_arch = "x86_64")]
+struct SseLanes(sse::SseRay);
+
+#[cfg(target_arch = "x86_64")]
+impl Lanes<WIDTH> for SseLanes {
+    #[inline(always)]
+    fn test(&self, node: &WideNode, _: &PreRay, tfar: f32) -> LaneHits {
+        self.0.test(node, tfar)
+    }
+    #[inline(always)]
+    fn sse(&self) -> Option<&sse::SseRay> {
+        Some(&self.0)
+    }
+}
+
+/// AVX2 node test of the 8-wide tree with the SSE packet test (only built with AVX2 present).
+#[cfg(target_arch = "x86_64")]
+struct AvxLanes(avx::AvxRay, sse::SseRay);
+
+#[cfg(target_arch = "x86_64")]
+impl Lanes<WIDTH8> for AvxLanes {
+    #[inline(always)]
+    fn test(&self, node: &WideNode8, _: &PreRay, tfar: f32) -> LaneHitsN<WIDTH8> {
+        self.0.test(node, tfar)
+    }
+    #[inline(always)]
+    fn sse(&self) -> Option<&sse::SseRay> {
+        Some(&self.1)
     }
 }
 
 /// A fixed-capacity stack of `(child code, entry distance)`; its capacity is the bound
-/// [`WideBvh::from_bvh2`] proved for the tree.
+/// [`WideBvh::from_bvh2`] proved for either tree.
 struct Stack {
-    items: [MaybeUninit<(u32, f32)>; STACK_CAPACITY],
+    items: [MaybeUninit<(u32, f32)>; STACK_CAPACITY8],
     len: usize,
 }
 
@@ -333,7 +501,7 @@ impl Stack {
     #[inline(always)]
     fn new() -> Stack {
         Stack {
-            items: [MaybeUninit::uninit(); STACK_CAPACITY],
+            items: [MaybeUninit::uninit(); STACK_CAPACITY8],
             len: 0,
         }
     }
@@ -360,8 +528,12 @@ impl Stack {
 /// Push the entered lanes of `hits` but the nearest, farthest first, and return the nearest
 /// (visited next without a round trip through the stack).
 #[inline(always)]
-fn push_ordered(stack: &mut Stack, node: &WideNode, (mask, dist): LaneHits) -> Option<(u32, f32)> {
-    let mut e = [(0u32, 0.0f32); WIDTH];
+fn push_ordered<const W: usize>(
+    stack: &mut Stack,
+    node: &WideNodeN<W>,
+    (mask, dist): LaneHitsN<W>,
+) -> Option<(u32, f32)> {
+    let mut e = [(0u32, 0.0f32); W];
     let mut n = 0;
     let mut m = mask;
     while m != 0 {
@@ -371,7 +543,7 @@ fn push_ordered(stack: &mut Stack, node: &WideNode, (mask, dist): LaneHits) -> O
         if code == EMPTY {
             continue;
         }
-        // Insertion sort by descending distance (at most four entries).
+        // Insertion sort by descending distance (at most `W` entries).
         let mut j = n;
         while j > 0 && e[j - 1].1 < dist[lane] {
             e[j] = e[j - 1];
@@ -405,8 +577,49 @@ pub fn closest<const STATS: bool>(
         return None;
     }
     let r = PreRay::new(ray);
-    let tester = Tester::new(kind, &r);
-    let abs = abs_slack(bvh, &r);
+    let eight = kind.width() == WIDTH8 && !bvh.nodes8.is_empty();
+    #[cfg(target_arch = "x86_64")]
+    if eight && kind == NodeTest::Avx2 && avx2_available() {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        return unsafe { closest_avx2::<STATS>(bvh, &r, stats) };
+    }
+    #[cfg(target_arch = "x86_64")]
+    if !eight && matches!(kind, NodeTest::Simd | NodeTest::Avx2) {
+        let l = SseLanes(sse::SseRay::new(&r));
+        return closest_in::<WIDTH, STATS, _>(bvh, &bvh.nodes, &r, &l, stats);
+    }
+    if eight {
+        closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &ScalarLanes, stats)
+    } else {
+        closest_in::<WIDTH, STATS, _>(bvh, &bvh.nodes, &r, &ScalarLanes, stats)
+    }
+}
+
+/// [`closest`] on the 8-wide tree with the AVX2 node test.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn closest_avx2<const STATS: bool>(
+    bvh: &WideBvh,
+    r: &PreRay,
+    stats: &mut TraceStats,
+) -> Option<Hit> {
+    let l = AvxLanes(avx::AvxRay::new(r), sse::SseRay::new(r));
+    closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, r, &l, stats)
+}
+
+/// The closest-hit loop over one tree (`nodes`: the tree of width `W` in `bvh`).
+#[inline(always)]
+fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
+    bvh: &WideBvh,
+    nodes: &[WideNodeN<W>],
+    r: &PreRay,
+    lanes: &L,
+    stats: &mut TraceStats,
+) -> Option<Hit> {
+    let abs = abs_slack(bvh, r);
     let mut best = Hit {
         t: r.tfar,
         prim: u32::MAX,
@@ -428,7 +641,7 @@ pub fn closest<const STATS: bool>(
                 if STATS {
                     stats.tri_tests += p.count as u64;
                 }
-                tester.packet(&r, p, best.t, |t, u, v, prim| {
+                lanes.packet(r, p, best.t, |t, u, v, prim| {
                     if !found || better(t, prim, best.t, best.prim) {
                         best = Hit { t, prim, u, v };
                         found = true;
@@ -441,11 +654,11 @@ pub fn closest<const STATS: bool>(
                 pi += 1;
             }
         } else {
-            let node = &bvh.nodes[code as usize];
+            let node = &nodes[code as usize];
             if STATS {
                 stats.node_tests += 1;
             }
-            let hits = tester.test(node, &r, cull);
+            let hits = lanes.test(node, r, cull);
             next = push_ordered(&mut stack, node, hits);
         }
     }
@@ -467,8 +680,49 @@ pub fn occluded<const STATS: bool>(
         return false;
     }
     let r = PreRay::new(ray);
-    let tester = Tester::new(kind, &r);
-    let abs = abs_slack(bvh, &r);
+    let eight = kind.width() == WIDTH8 && !bvh.nodes8.is_empty();
+    #[cfg(target_arch = "x86_64")]
+    if eight && kind == NodeTest::Avx2 && avx2_available() {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        return unsafe { occluded_avx2::<STATS>(bvh, &r, stats) };
+    }
+    #[cfg(target_arch = "x86_64")]
+    if !eight && matches!(kind, NodeTest::Simd | NodeTest::Avx2) {
+        let l = SseLanes(sse::SseRay::new(&r));
+        return occluded_in::<WIDTH, STATS, _>(bvh, &bvh.nodes, &r, &l, stats);
+    }
+    if eight {
+        occluded_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &ScalarLanes, stats)
+    } else {
+        occluded_in::<WIDTH, STATS, _>(bvh, &bvh.nodes, &r, &ScalarLanes, stats)
+    }
+}
+
+/// [`occluded`] on the 8-wide tree with the AVX2 node test.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn occluded_avx2<const STATS: bool>(
+    bvh: &WideBvh,
+    r: &PreRay,
+    stats: &mut TraceStats,
+) -> bool {
+    let l = AvxLanes(avx::AvxRay::new(r), sse::SseRay::new(r));
+    occluded_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, r, &l, stats)
+}
+
+/// The any-hit loop over one tree.
+#[inline(always)]
+fn occluded_in<const W: usize, const STATS: bool, L: Lanes<W>>(
+    bvh: &WideBvh,
+    nodes: &[WideNodeN<W>],
+    r: &PreRay,
+    lanes: &L,
+    stats: &mut TraceStats,
+) -> bool {
+    let abs = abs_slack(bvh, r);
     let cull = slack(r.tfar, abs);
     let mut stack = Stack::new();
     stack.push((0, r.tnear));
@@ -481,7 +735,7 @@ pub fn occluded<const STATS: bool>(
                     stats.tri_tests += p.count as u64;
                 }
                 let mut hit = false;
-                tester.packet(&r, p, r.tfar, |_, _, _, _| hit = true);
+                lanes.packet(r, p, r.tfar, |_, _, _, _| hit = true);
                 if hit {
                     return true;
                 }
@@ -491,11 +745,11 @@ pub fn occluded<const STATS: bool>(
                 pi += 1;
             }
         } else {
-            let node = &bvh.nodes[code as usize];
+            let node = &nodes[code as usize];
             if STATS {
                 stats.node_tests += 1;
             }
-            let (mut m, _) = tester.test(node, &r, cull);
+            let (mut m, _) = lanes.test(node, r, cull);
             // Any hit ends the search, so the order of visits only matters for speed; the
             // lanes go on the stack as they come.
             while m != 0 {

@@ -396,9 +396,9 @@ pub fn protocol_counts(bvh: &WideBvh, tris: &[[Vec3; 3]], mode: CameraMode, res:
     let frame = SceneFrame::of(tris);
     let cam = Camera::protocol(&frame, mode);
     let primary = primary_rays(&cam, res, res);
-    let (hits, _) = trace_closest(bvh, &primary, NodeTest::Simd, false);
+    let (hits, _) = trace_closest(bvh, &primary, NodeTest::fastest(), false);
     let (ao, _) = all_ao_rays(&primary, &hits, tris, frame.diag);
-    let (occ, _) = trace_occluded(bvh, &ao, NodeTest::Simd, false);
+    let (occ, _) = trace_occluded(bvh, &ao, NodeTest::fastest(), false);
     AoCounts {
         primary_hits: hits.iter().filter(|h| h.is_some()).count() as u64,
         ao_rays: ao.len() as u64,
