@@ -21,7 +21,7 @@ pub struct PaperArgs {
     /// Output folder.
     #[arg(long, default_value = "out/paper")]
     pub out: PathBuf,
-    /// Small and fast: built-in scenes of 100k triangles, 128×128 primary rays per configuration.
+    /// Small and fast: built-in scenes of 100k triangles, 256×256 primary rays per configuration.
     #[arg(long)]
     pub quick: bool,
     /// Threads of every build and trace (at least 1).
@@ -111,7 +111,7 @@ pub fn run(a: &PaperArgs) -> anyhow::Result<()> {
             .min_by(|a, b| a.time_to_image_ms().total_cmp(&b.time_to_image_ms()))
         {
             println!(
-                "  {:<22} fastest time-to-image: {} {} ({:.1} ms); Pareto (build, SAH): {}",
+                "  {:<22} fastest time-to-image: {} {} ({:.1} CPU ms); Pareto (build, SAH): {}",
                 "",
                 best.builder.name(),
                 best.layout_name(),
@@ -137,7 +137,7 @@ pub fn run(a: &PaperArgs) -> anyhow::Result<()> {
                 )
             };
             println!(
-                "  AVG {:<7} {:<10} vs morton63: SAH {:+.1}%, SAH collapsed {:+.1}%, primary Mrays/s {:+.1}%, AO Mrays/s {:+.1}%",
+                "  AVG {:<7} {:<10} vs morton63: SAH {:+.1}%, SAH collapsed {:+.1}%, primary Mrays/CPU-s {:+.1}%, AO {:+.1}%",
                 b.name(),
                 spec.to_string(),
                 avg(Metric::SahHeadline),

@@ -94,8 +94,10 @@ pub fn all_variants() -> Vec<Variant> {
 pub struct Built {
     /// The collapsed BVH that is traced.
     pub bvh: Bvh,
-    /// Wall milliseconds from triangles to the collapsed BVH.
+    /// Thread-CPU milliseconds (summed over the pool) from triangles to the collapsed BVH.
     pub build_ms: f64,
+    /// Wall milliseconds of the same.
+    pub build_wall_ms: f64,
     /// The resolved layout as the seed prints it (`None` for binned SAH).
     pub layout: Option<String>,
     /// SAH with `Ct = Ci = 1`, one primitive per leaf.
@@ -149,7 +151,8 @@ pub fn build(
     )?;
     Ok(Built {
         bvh: out.bvh,
-        build_ms: out.report.total().wall_ms,
+        build_ms: out.report.total().cpu_ms,
+        build_wall_ms: out.report.total().wall_ms,
         layout: out.report.layout,
         sah_headline: out.report.sah_headline,
         sah_collapsed: out.report.sah_collapsed,
@@ -176,6 +179,7 @@ fn build_cube(
         PaperBuilder::BinnedSah => return build(scene, builder, &Variant::plain(spec), pool),
     };
     let tree_k = if atr { CollapseParams::NONE } else { collapse };
+    let c0 = pool_cpu_ms(pool);
     let t0 = Instant::now();
     let r = pool.install(
         || -> Result<(Bvh, Option<Bvh>, String, Option<_>), MeasureError> {
@@ -198,7 +202,8 @@ fn build_cube(
             }
         },
     )?;
-    let build_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let build_wall_ms = t0.elapsed().as_secs_f64() * 1e3;
+    let build_ms = pool_cpu_ms(pool) - c0;
     let (bvh, plain, layout, tree) = r;
     let headline = match (plain, tree) {
         (Some(p), _) => pool.install(|| sah_headline(&p)),
@@ -209,6 +214,7 @@ fn build_cube(
         sah_collapsed: sah_cost(&bvh, k),
         bvh,
         build_ms,
+        build_wall_ms,
         layout: Some(layout),
         sah_headline: headline,
     })
@@ -225,10 +231,15 @@ pub struct Traced {
     pub primary_hits: u64,
     /// Occluded AO rays (the same check).
     pub ao_occluded: u64,
-    /// Wall milliseconds of the primary rays (median of the repeats).
+    /// Thread-CPU milliseconds of the primary rays (summed over the pool, median of the
+    /// repeats): unlike wall time, not inflated when other processes take the cores.
     pub primary_ms: f64,
-    /// Wall milliseconds of the AO rays (median of the repeats).
+    /// Thread-CPU milliseconds of the AO rays (median of the repeats).
     pub ao_ms: f64,
+    /// Wall milliseconds of the primary rays (median of the repeats).
+    pub primary_wall_ms: f64,
+    /// Wall milliseconds of the AO rays (median of the repeats).
+    pub ao_wall_ms: f64,
     /// Wide-node tests per ray over both kinds.
     pub node_tests_per_ray: f64,
     /// Triangle tests per ray over both kinds.
@@ -236,17 +247,22 @@ pub struct Traced {
 }
 
 impl Traced {
-    /// Wall milliseconds of the whole ray budget.
+    /// Thread-CPU milliseconds of the whole ray budget.
     pub fn trace_ms(&self) -> f64 {
         self.primary_ms + self.ao_ms
     }
 
-    /// Million primary rays per wall second.
+    /// Wall milliseconds of the whole ray budget.
+    pub fn trace_wall_ms(&self) -> f64 {
+        self.primary_wall_ms + self.ao_wall_ms
+    }
+
+    /// Million primary rays per thread-CPU second.
     pub fn primary_mrays(&self) -> f64 {
         mrays(self.primary_rays, self.primary_ms)
     }
 
-    /// Million AO rays per wall second.
+    /// Million AO rays per thread-CPU second.
     pub fn ao_mrays(&self) -> f64 {
         mrays(self.ao_rays, self.ao_ms)
     }
@@ -308,21 +324,25 @@ pub fn trace(
 ) -> Result<(Traced, WideBvh, Vec<Option<Hit>>), MeasureError> {
     let wide = pool.install(|| WideBvh::from_bvh2(bvh, &w.tris))?;
     let repeats = repeats.max(1);
-    let mut tp = Vec::with_capacity(repeats);
+    let (mut tp, mut wp) = (Vec::with_capacity(repeats), Vec::with_capacity(repeats));
     let mut hits = Vec::new();
     for _ in 0..repeats {
+        let c0 = pool_cpu_ms(pool);
         let t0 = Instant::now();
         let (h, _) = pool.install(|| trace_closest(&wide, &w.primary, NodeTest::Simd, false));
-        tp.push(t0.elapsed().as_secs_f64() * 1e3);
+        wp.push(t0.elapsed().as_secs_f64() * 1e3);
+        tp.push(pool_cpu_ms(pool) - c0);
         hits = h;
     }
     let (ao, _) = pool.install(|| all_ao_rays(&w.primary, &hits, &w.tris, w.frame.diag));
-    let mut ta = Vec::with_capacity(repeats);
+    let (mut ta, mut wa) = (Vec::with_capacity(repeats), Vec::with_capacity(repeats));
     let mut occ = Vec::new();
     for _ in 0..repeats {
+        let c0 = pool_cpu_ms(pool);
         let t0 = Instant::now();
         let (o, _) = pool.install(|| trace_occluded(&wide, &ao, NodeTest::Simd, false));
-        ta.push(t0.elapsed().as_secs_f64() * 1e3);
+        wa.push(t0.elapsed().as_secs_f64() * 1e3);
+        ta.push(pool_cpu_ms(pool) - c0);
         occ = o;
     }
     let (_, sp) = pool.install(|| trace_closest(&wide, &w.primary, NodeTest::Simd, true));
@@ -336,8 +356,33 @@ pub fn trace(
         ao_occluded: occ.iter().filter(|&&o| o).count() as u64,
         primary_ms: median(tp),
         ao_ms: median(ta),
+        primary_wall_ms: median(wp),
+        ao_wall_ms: median(wa),
         node_tests_per_ray: s.node_tests as f64 / rays,
         tri_tests_per_ray: s.tri_tests as f64 / rays,
     };
     Ok((t, wide, hits))
+}
+
+/// CPU milliseconds of the calling thread (wall time where there is no per-thread clock).
+fn thread_cpu_ms() -> f64 {
+    #[cfg(unix)]
+    {
+        let mut ts = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: `ts` is a valid, writable timespec; the call only writes it.
+        let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
+        if rc == 0 {
+            return ts.tv_sec as f64 * 1e3 + ts.tv_nsec as f64 * 1e-6;
+        }
+    }
+    static START: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
+    START.get_or_init(Instant::now).elapsed().as_secs_f64() * 1e3
+}
+
+/// CPU milliseconds of all threads of `pool` so far.
+pub fn pool_cpu_ms(pool: &rayon::ThreadPool) -> f64 {
+    pool.broadcast(|_| thread_cpu_ms()).iter().sum()
 }

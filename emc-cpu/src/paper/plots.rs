@@ -9,7 +9,7 @@ use plotters::prelude::*;
 use super::measure::PaperBuilder;
 use super::{PaperError, Run, SceneResult};
 
-/// The y axis of a plot (x is always build ms).
+/// The y axis of a plot (x is always build thread-CPU ms).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Axis {
     /// Collapsed SAH; the front is the (build, SAH) front.
@@ -66,7 +66,7 @@ fn draw(s: &SceneResult, axis: Axis, path: &Path) -> Result<(), String> {
     let (y0, y1) = range(s.runs.iter().map(|r| y_of(r, axis)));
     let ylabel = match axis {
         Axis::Sah => "SAH (collapsed)",
-        Axis::TimeToImage => "time-to-image [ms]",
+        Axis::TimeToImage => "time-to-image [CPU ms]",
     };
     let mut chart = ChartBuilder::on(&root)
         .caption(
@@ -80,7 +80,7 @@ fn draw(s: &SceneResult, axis: Axis, path: &Path) -> Result<(), String> {
         .map_err(|x| e(&x))?;
     chart
         .configure_mesh()
-        .x_desc("build [ms]")
+        .x_desc("build [CPU ms]")
         .y_desc(ylabel)
         .draw()
         .map_err(|x| e(&x))?;

@@ -137,11 +137,11 @@ impl Metric {
     /// Row label.
     pub fn label(self) -> &'static str {
         match self {
-            Metric::BuildMs => "build [ms]",
+            Metric::BuildMs => "build [CPU ms]",
             Metric::SahHeadline => "SAH (Ct=Ci=1, 1 prim/leaf)",
             Metric::SahCollapsed => "SAH (collapsed, traced)",
-            Metric::PrimaryMrays => "Mrays/s primary",
-            Metric::AoMrays => "Mrays/s AO",
+            Metric::PrimaryMrays => "Mrays per CPU-s, primary",
+            Metric::AoMrays => "Mrays per CPU-s, AO",
             Metric::NodeTests => "node tests / ray",
             Metric::TriTests => "triangle tests / ray",
         }
@@ -150,11 +150,11 @@ impl Metric {
     /// Short name for CSV.
     pub fn key(self) -> &'static str {
         match self {
-            Metric::BuildMs => "build_ms",
+            Metric::BuildMs => "build_cpu_ms",
             Metric::SahHeadline => "sah_headline",
             Metric::SahCollapsed => "sah_collapsed",
-            Metric::PrimaryMrays => "primary_mrays",
-            Metric::AoMrays => "ao_mrays",
+            Metric::PrimaryMrays => "primary_mrays_per_cpu_s",
+            Metric::AoMrays => "ao_mrays_per_cpu_s",
             Metric::NodeTests => "node_tests_per_ray",
             Metric::TriTests => "tri_tests_per_ray",
         }
@@ -333,13 +333,13 @@ fn accuracy_table_md(s: &SceneResult, out: &mut String) {
     );
     let _ = writeln!(
         out,
-        "| builder | layout | code (x/y/z/s pattern) | build ms | SAH | SAH collapsed | trace ms | time-to-image ms | prim / AO Mrays/s | front (build, SAH) | front (build, trace) |"
+        "| builder | layout | code (x/y/z/s pattern) | build CPU ms | SAH | SAH collapsed | trace CPU ms | time-to-image CPU ms (wall) | prim / AO Mrays per CPU-s | front (build, SAH) | front (build, trace) |"
     );
     let _ = writeln!(out, "|---|---|---|---:|---:|---:|---:|---:|---:|:-:|:-:|");
     for r in &s.runs {
         let _ = writeln!(
             out,
-            "| {} | {} | {} | {:.1} | {:.3} | {:.3} | {:.1} | {:.1} | {:.2} / {:.2} | {} | {} |",
+            "| {} | {} | {} | {:.1} | {:.3} | {:.3} | {:.1} | {:.1} ({:.1}) | {:.2} / {:.2} | {} | {} |",
             r.builder.name(),
             r.layout_name(),
             r.layout.as_deref().unwrap_or("–"),
@@ -348,6 +348,7 @@ fn accuracy_table_md(s: &SceneResult, out: &mut String) {
             r.sah_collapsed,
             r.traced.trace_ms(),
             r.time_to_image_ms(),
+            r.build_wall_ms + r.traced.trace_wall_ms(),
             r.traced.primary_mrays(),
             r.traced.ao_mrays(),
             if r.pareto_sah { "★" } else { "" },
@@ -361,7 +362,7 @@ fn accuracy_table_md(s: &SceneResult, out: &mut String) {
     {
         let _ = writeln!(
             out,
-            "\nFastest time-to-image: {} {} ({:.1} ms).",
+            "\nFastest time-to-image: {} {} ({:.1} CPU ms).",
             best.builder.name(),
             best.layout_name(),
             best.time_to_image_ms()
@@ -490,9 +491,11 @@ pub fn markdown(res: &PaperResults) -> String {
         out,
         "# emc paper: the seed's tables on this machine, and what accuracy costs in time\n\n\
          Scenes: {}. Threads: {}. Ray budget per configuration: {} primary rays (protocol \
-         camera, 8×8 tiles) plus their 4 AO rays per hit. Build times are wall milliseconds \
-         from triangles to the collapsed BVH; trace times are wall milliseconds (conversion to \
-         the 4-wide BVH excluded). `morton63-cube` is `morton63` with positions normalised to \
+         camera, 8×8 tiles) plus their 4 AO rays per hit. Times are thread-CPU milliseconds \
+         summed over the pool (a shared, busy machine inflates wall time but hardly CPU time; \
+         wall figures are in `runs.csv` and in brackets): builds from triangles to the \
+         collapsed BVH, traces as the median of the timed repeats, conversion to the 4-wide \
+         BVH excluded. Mrays/s are rays per thread-CPU second. `morton63-cube` is `morton63` with positions normalised to \
          the cube of the largest extent; the build pipeline has no normalisation option, so this \
          variant is assembled from the pipeline's public phases (boxes, frame, codes, radix \
          sort, Karras tree with bottom-up refit, emission, plus restructuring for `atrbvh`): \
@@ -511,8 +514,8 @@ pub fn markdown(res: &PaperResults) -> String {
     let _ = writeln!(
         out,
         "\n## 2. What accuracy costs in time\n\nEvery layout × (lbvh, atrbvh), plus binned SAH \
-         as the reference. ★ marks the Pareto front of (build ms, collapsed SAH) and of \
-         (build ms, trace ms): a configuration off the second front is slower to an image for \
+         as the reference. ★ marks the Pareto front of (build CPU ms, collapsed SAH) and of \
+         (build CPU ms, trace CPU ms): a configuration off the second front is slower to an image for \
          every number of images traced."
     );
     for s in &res.scenes {
