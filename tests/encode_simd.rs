@@ -25,6 +25,10 @@ fn variants(layout: &Layout, frame: &Frame) -> Vec<Encoder> {
                     SizePath::Avx512Lookup,
                 ] {
                     if let Ok(es) = e.clone().with_size_path(s) {
+                        // The AVX-512 bit-shuffle expansion too, where the CPU has it.
+                        if let Ok(eb) = es.clone().with_bit_shuffle(true) {
+                            out.push(eb);
+                        }
                         out.push(es);
                     }
                 }
@@ -97,8 +101,19 @@ fn avx2_path_is_reported_where_available() {
             // emc64-sort has 16 size bits: the lookup falls back to the formula.
             let sort = Encoder::new(&"emc64-sort".parse().unwrap(), &frame);
             assert_eq!(sort.pipeline().size, Some(SizePath::Formula));
+            // Dispatch keeps pdep for the expansion; the bit shuffle is opt-in.
+            assert_eq!(p.expand, emc_core::ExpandPath::PdepLanes);
         } else {
             assert!(l.is_err());
+        }
+        let shuffled = enc.clone().with_bit_shuffle(true);
+        if emc_core::cpu::has_avx512_bit_shuffle() {
+            let s = shuffled.unwrap();
+            assert_eq!(s.pipeline().expand, emc_core::ExpandPath::BitShuffle512);
+            let off = s.with_bit_shuffle(false).unwrap();
+            assert_eq!(off.pipeline().expand, emc_core::ExpandPath::PdepLanes);
+        } else {
+            assert!(shuffled.is_err());
         }
     } else {
         eprintln!("no AVX2 here: the SIMD comparisons below only cover the scalar path");

@@ -127,6 +127,18 @@ pub fn has_avx512() -> bool {
     false
 }
 
+/// [`has_avx512`] plus VBMI (`vpermb`, leaf 7 ECX bit 1) and BITALG (`vpshufbitqmb`, ECX
+/// bit 12): what the bit-shuffle expansion of the batch pipeline needs.
+pub fn has_avx512_bit_shuffle() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let ecx = core::arch::x86_64::__cpuid_count(7, 0).ecx;
+        has_avx512() && ecx & (1 << 1) != 0 && ecx & (1 << 12) != 0
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    false
+}
+
 /// Off x86_64 there is no `pdep` and no AVX2.
 #[cfg(not(target_arch = "x86_64"))]
 pub fn detect() -> CpuInfo {

@@ -31,7 +31,7 @@ const SIZE_EXACT_SQRT: u8 = 2;
 const SIZE_EXACT_LINEAR: u8 = 3;
 /// Size by the AVX-512 estimate and in-register threshold lookup (`S <= 6`, see
 /// [`super::avx512`]); only set when [`crate::cpu::has_avx512`] said yes.
-const SIZE_LOOKUP512: u8 = 4;
+pub(super) const SIZE_LOOKUP512: u8 = 4;
 
 /// Per-encoder constants of the AVX2 quantise step.
 #[derive(Clone, Debug)]
@@ -56,6 +56,9 @@ pub(crate) struct Kernel {
     pub(super) s_scale: f64,
     /// The quantiser's thresholds `T(0..2^S)` (`T(0) = 0`), padded with +inf (never read).
     pub(super) thr: [f64; 256],
+    /// The layout's channel masks when the batch expands by AVX-512 bit shuffles instead of
+    /// the expander (only set after [`crate::cpu::has_avx512_bit_shuffle`] said yes).
+    shuffle: Option<[u64; 4]>,
 }
 
 impl Kernel {
@@ -85,6 +88,7 @@ impl Kernel {
             diag: q.diagonal(),
             s_scale: crate::quantize::pow2(s),
             thr: [f64::INFINITY; 256],
+            shuffle: None,
         };
         if s == 0 {
             return Some(k);
@@ -106,6 +110,21 @@ impl Kernel {
             }
         }
         Some(k)
+    }
+
+    /// Expand by AVX-512 bit shuffles with these channel masks (`Some`), or by the expander
+    /// (`None`); false (and no change) when the CPU lacks AVX-512 VBMI/BITALG.
+    pub(crate) fn set_bit_shuffle(&mut self, masks: Option<[u64; 4]>) -> bool {
+        if masks.is_some() && !crate::cpu::has_avx512_bit_shuffle() {
+            return false;
+        }
+        self.shuffle = masks;
+        true
+    }
+
+    /// Whether the batch expands by AVX-512 bit shuffles.
+    pub(crate) fn bit_shuffle(&self) -> bool {
+        self.shuffle.is_some()
     }
 
     /// How the size channel is computed (`None` without one).
@@ -169,6 +188,13 @@ impl Kernel {
                     _ => 0,
                 }
             };
+        }
+        if let Some(m) = self.shuffle {
+            return by_size!(self.size_mode, S =>
+                // SAFETY: `shuffle` is only set after `has_avx512_bit_shuffle()` said yes (which
+                // includes everything the lookup mode needs); `out` by the caller; `n4` groups
+                // lie in `boxes`.
+                unsafe { super::avx512::run_bit_shuffle::<S, W32>(self, m, src, n4, out) });
         }
         match exp {
             Expander::Table(t) => tables!(t, 1 2 3 4 5 6 7 8 9 10 11 12),
@@ -330,7 +356,7 @@ pub(super) unsafe fn positions4(
 /// AVX-512 (which [`Kernel::new`] checked before setting it).
 #[target_feature(enable = "avx2")]
 #[inline]
-unsafe fn quantize4<const SIZE: u8>(k: &Kernel, p: *const f32) -> [__m128i; 4] {
+pub(super) unsafe fn quantize4<const SIZE: u8>(k: &Kernel, p: *const f32) -> [__m128i; 4] {
     // SAFETY: `p` by the contract above.
     let ([qx, qy, qz], d2) = unsafe { positions4(k, p, SIZE != SIZE_NONE) };
     if SIZE == SIZE_NONE {

@@ -16,7 +16,7 @@
 
 use core::arch::x86_64::*;
 
-use super::avx2::{positions4, Kernel};
+use super::avx2::{positions4, quantize4, Kernel, SIZE_LOOKUP512};
 
 /// Largest size-bit count the in-register lookup serves (`2^6 = 64` thresholds, eight `zmm`).
 pub(crate) const LOOKUP_BITS: u32 = 6;
@@ -168,6 +168,148 @@ pub(super) unsafe fn run_pdep<const W32: bool>(
                     (out as *mut u32).add(i).write_unaligned(code as u32);
                 } else {
                     (out as *mut u64).add(i).write_unaligned(code);
+                }
+            }
+        }
+        g += if pairs { 2 } else { 1 };
+    }
+    4 * n4
+}
+
+/// The byte indices of the bit shuffle for one output byte `j` of every code, as an
+/// `i64x8` broadcast: byte `i` = the bit of the concatenated value `c` that code bit `8j + i`
+/// takes (63, a zero bit of `c`, where no channel owns the code bit).
+///
+/// ```text
+///   c    = x | y << nx | z << (nx + ny) | s << (nx + ny + nz)      (nx = bits of x, …)
+///   code bit i = c bit perm[i],  perm[i] = offset(ch) + rank of i among ch's mask bits
+/// ```
+fn shuffle_indices(masks: [u64; 4]) -> [u64; 8] {
+    let mut perm = [63u8; 64];
+    let mut off = 0u32;
+    for m in masks {
+        let mut r = 0u32;
+        for (i, p) in perm.iter_mut().enumerate() {
+            if (m >> i) & 1 == 1 {
+                *p = (off + r).min(63) as u8;
+                r += 1;
+            }
+        }
+        off += m.count_ones();
+    }
+    let mut out = [0u64; 8];
+    for (j, o) in out.iter_mut().enumerate() {
+        let mut b = [0u8; 8];
+        b.copy_from_slice(&perm[8 * j..8 * j + 8]);
+        *o = u64::from_le_bytes(b);
+    }
+    out
+}
+
+/// Expand eight quantised boxes (`q[channel]` as `i32x8`) into eight codes by bit shuffles:
+/// concatenate the channels into one `u64` per lane, then `vpshufbitqmb` gathers output byte
+/// `j` of all eight codes into mask `k_j` (bit `8l + i` = code `l` bit `8j + i`), and one
+/// `vpermb` transposes the 8×8 bytes of `[k_0 … k_7]` into the codes.
+///
+/// ```text
+///   M = [k_0 k_1 … k_7] (qword j = k_j):  byte 8j + l = code l byte j
+///   code l byte j = M byte 8j + l   → vpermb index at byte 8l + j is 8j + l
+/// ```
+#[target_feature(enable = "avx512f,avx512bw,avx512bitalg,avx512vbmi")]
+#[inline]
+fn bit_shuffle8(q: [__m256i; 4], shifts: [__m128i; 4], idx: &[__m512i; 8]) -> __m512i {
+    let mut c = _mm512_setzero_si512();
+    for ch in 0..4 {
+        c = _mm512_or_si512(
+            c,
+            _mm512_sll_epi64(_mm512_cvtepu32_epi64(q[ch]), shifts[ch]),
+        );
+    }
+    let k: [u64; 8] = core::array::from_fn(|j| _mm512_bitshuffle_epi64_mask(c, idx[j]));
+    let m = _mm512_set_epi64(
+        k[7] as i64,
+        k[6] as i64,
+        k[5] as i64,
+        k[4] as i64,
+        k[3] as i64,
+        k[2] as i64,
+        k[1] as i64,
+        k[0] as i64,
+    );
+    let t: [u8; 64] = core::array::from_fn(|b| (8 * (b % 8) + b / 8) as u8);
+    // SAFETY: `t` holds 64 bytes.
+    let tv = unsafe { _mm512_loadu_si512(t.as_ptr() as *const __m512i) };
+    _mm512_permutexvar_epi8(tv, m)
+}
+
+/// The batch pipeline with AVX-512 bit-shuffle expansion (any pattern, `masks` = the
+/// layout's channel masks): eight boxes per step, the size channel by `SIZE` (the AVX-512
+/// lookup in eight lanes, or the AVX2 step's four-lane paths twice). A lone last group of
+/// four is quantised twice and written once. Returns `4·n4`.
+///
+/// # Safety
+/// AVX2 and AVX-512 F/DQ/VL/BW/BITALG/VBMI; `src` holds `4·n4` boxes; `out` valid for `4·n4`
+/// codes (`u32` when `W32`).
+#[target_feature(enable = "avx2,avx512f,avx512dq,avx512vl,avx512bw,avx512bitalg,avx512vbmi")]
+pub(super) unsafe fn run_bit_shuffle<const SIZE: u8, const W32: bool>(
+    k: &Kernel,
+    masks: [u64; 4],
+    src: *const f32,
+    n4: usize,
+    out: *mut u8,
+) -> usize {
+    let c = Consts::new(k);
+    let idx = shuffle_indices(masks).map(|v| _mm512_set1_epi64(v as i64));
+    let mut off = 0i64;
+    let shifts = masks.map(|m| {
+        let s = _mm_cvtsi64_si128(off);
+        off += m.count_ones() as i64;
+        s
+    });
+    let join = |a: __m128i, b: __m128i| _mm256_inserti128_si256::<1>(_mm256_castsi128_si256(a), b);
+    let mut g = 0;
+    while g < n4 {
+        let pa = src.wrapping_add(24 * g);
+        let pairs = n4 - g >= 2;
+        let pb = if pairs { pa.wrapping_add(24) } else { pa };
+        let q = if SIZE == SIZE_LOOKUP512 {
+            // SAFETY: groups g (and g + 1 when `pairs`) lie inside `src`.
+            let ((qa, da), (qb, db)) =
+                unsafe { (positions4(k, pa, true), positions4(k, pb, true)) };
+            let s = size8(&c, _mm512_insertf64x4::<1>(_mm512_castpd256_pd512(da), db));
+            [
+                join(qa[0], qb[0]),
+                join(qa[1], qb[1]),
+                join(qa[2], qb[2]),
+                s,
+            ]
+        } else {
+            // SAFETY: as above; the four-lane size paths need only AVX2.
+            let (qa, qb) = unsafe { (quantize4::<SIZE>(k, pa), quantize4::<SIZE>(k, pb)) };
+            [
+                join(qa[0], qb[0]),
+                join(qa[1], qb[1]),
+                join(qa[2], qb[2]),
+                join(qa[3], qb[3]),
+            ]
+        };
+        let codes = bit_shuffle8(q, shifts, &idx);
+        // SAFETY: codes 4g .. 4g + 8 (or + 4 without `pairs`) are inside `out`.
+        unsafe {
+            if W32 {
+                let c32 = _mm512_cvtepi64_epi32(codes);
+                let o = (out as *mut u32).add(4 * g);
+                if pairs {
+                    _mm256_storeu_si256(o as *mut __m256i, c32);
+                } else {
+                    _mm_storeu_si128(o as *mut __m128i, _mm256_castsi256_si128(c32));
+                }
+            } else {
+                let o = (out as *mut u64).add(4 * g);
+                if pairs {
+                    _mm512_storeu_si512(o as *mut __m512i, codes);
+                } else {
+                    _mm256_storeu_si256(o as *mut __m256i, _mm512_castsi512_si256(codes));
                 }
             }
         }

@@ -54,6 +54,9 @@ pub enum ExpandPath {
     PdepLanes,
     /// The reference bit loop on each lane (forced reference backend).
     ReferenceLanes,
+    /// AVX-512 bit shuffles, eight codes at a time: the channels concatenated per `u64` lane,
+    /// one `vpshufbitqmb` per code byte, one `vpermb` transpose (any pattern).
+    BitShuffle512,
 }
 
 impl fmt::Display for ExpandPath {
@@ -64,6 +67,9 @@ impl fmt::Display for ExpandPath {
             ExpandPath::MagicAvx2 => f.write_str("magic (avx2 u64x4 shift/mask spreads)"),
             ExpandPath::PdepLanes => f.write_str("pdep (one per channel and lane)"),
             ExpandPath::ReferenceLanes => f.write_str("reference (bit loop per lane)"),
+            ExpandPath::BitShuffle512 => {
+                f.write_str("avx-512 bit shuffle (vpshufbitqmb per code byte, vpermb transpose)")
+            }
         }
     }
 }
