@@ -267,3 +267,91 @@ pub fn layout_of(chans: &[Channel], linear: bool) -> Layout {
 pub fn frame_of(boxes: &[Aabb]) -> Frame {
     Frame::new(boxes).expect("generated scenes are finite and valid")
 }
+
+/// Random and adversarial rays for a triangle list, deterministic in `seed`: random origins
+/// and directions, rays aimed exactly at vertices and at points on edges, axis-parallel rays
+/// through a vertex's other two coordinates, grazing rays lying in a triangle's plane along
+/// one of its edges, and rays starting on a triangle (inside it or at a vertex). Origins are
+/// drawn from the scene box padded by 10%, computed in `f64` so huge scenes do not overflow.
+pub fn adversarial_rays(
+    tris: &[[Vec3; 3]],
+    n: usize,
+    seed: u64,
+) -> Vec<emc_cpu::trace::intersect::Ray> {
+    use emc_cpu::scene::builtin::Pcg32;
+    use emc_cpu::trace::intersect::Ray;
+    let mut rng = Pcg32::new(seed, 7);
+    let (mut lo, mut hi) = ([f64::INFINITY; 3], [f64::NEG_INFINITY; 3]);
+    for t in tris {
+        for v in t {
+            for a in 0..3 {
+                lo[a] = lo[a].min(v[a] as f64);
+                hi[a] = hi[a].max(v[a] as f64);
+            }
+        }
+    }
+    let origin = |rng: &mut Pcg32| {
+        let mut o = Vec3::ZERO;
+        for a in 0..3 {
+            let pad = (hi[a] - lo[a]) * 0.1 + 1e-3 * (1.0 + lo[a].abs().max(hi[a].abs()) * 1e-6);
+            let u = rng.f32() as f64;
+            let x = (lo[a] - pad) + (hi[a] - lo[a] + 2.0 * pad) * u;
+            o[a] = (x as f32).clamp(-f32::MAX, f32::MAX);
+        }
+        o
+    };
+    let below = |rng: &mut Pcg32, k: usize| (rng.next_u32() as usize) % k;
+    let mut out = Vec::with_capacity(n);
+    for k in 0..n {
+        let o = origin(&mut rng);
+        let t = tris[below(&mut rng, tris.len())];
+        let ray = match k % 8 {
+            0 => Ray::new(o, rng.signed3()),
+            1 => Ray::new(o, t[below(&mut rng, 3)] - o),
+            2 => {
+                let (a, b) = (t[below(&mut rng, 3)], t[(below(&mut rng, 2) + 1) % 3]);
+                let s = rng.f32();
+                Ray::new(o, a + (b - a) * s - o)
+            }
+            3 => {
+                let v = t[below(&mut rng, 3)];
+                let axis = below(&mut rng, 3);
+                let mut o2 = v;
+                o2[axis] = o[axis];
+                let mut d = Vec3::ZERO;
+                d[axis] = if rng.f32() < 0.5 { 1.0 } else { -1.0 };
+                Ray::new(o2, d)
+            }
+            4 => {
+                // Grazing: in the triangle's plane, along an edge, starting before it.
+                let i = below(&mut rng, 3);
+                let (a, b) = (t[i], t[(i + 1) % 3]);
+                let d = b - a;
+                Ray::new(a - d * rng.range(0.0, 2.0), d)
+            }
+            5 => {
+                // Origin inside the triangle (barycentric point).
+                let (u, v) = (rng.f32(), rng.f32());
+                let (u, v) = if u + v > 1.0 {
+                    (1.0 - u, 1.0 - v)
+                } else {
+                    (u, v)
+                };
+                let p = t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v;
+                Ray::new(p, rng.signed3())
+            }
+            6 => Ray::new(t[below(&mut rng, 3)], rng.signed3()),
+            _ => {
+                // One exact zero component in a random direction.
+                let mut d = rng.signed3();
+                d[below(&mut rng, 3)] = 0.0;
+                if d == Vec3::ZERO {
+                    d = Vec3::X;
+                }
+                Ray::new(o, d)
+            }
+        };
+        out.push(ray);
+    }
+    out
+}
