@@ -500,10 +500,13 @@ struct Stack {
 impl Stack {
     #[inline(always)]
     fn new() -> Stack {
-        Stack {
-            items: [MaybeUninit::uninit(); STACK_CAPACITY8],
-            len: 0,
-        }
+        // SAFETY: an array of `MaybeUninit` needs no initialisation. (Built this way, not as
+        // `[MaybeUninit::uninit(); N]`, which the compiler was seen to zero with a memset of
+        // the whole stack on every ray.)
+        let items = unsafe {
+            MaybeUninit::<[MaybeUninit<(u32, f32)>; STACK_CAPACITY8]>::uninit().assume_init()
+        };
+        Stack { items, len: 0 }
     }
 
     #[inline(always)]
