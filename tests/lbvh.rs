@@ -8,8 +8,8 @@
 
 use emc_core::{Aabb, LayoutSpec};
 use emc_cpu::build::{
-    build_aabbs, encode_codes, encoder_for, lbvh_tree, sort_codes, BuildOptions, BuildOutput,
-    Builder, Phase,
+    build_aabbs, build_aabbs_in, encode_codes, encoder_for, lbvh_tree, sort_codes, BuildArena,
+    BuildOptions, BuildOutput, Builder, Phase,
 };
 use emc_cpu::bvh::refit::{gather_sorted, CollapseParams, RadixTree};
 use emc_cpu::bvh::{sah_cost, Bvh, Node, SahConstants};
@@ -408,6 +408,37 @@ fn one_pass_lbvh_equals_apetrei_and_emit() {
             opts(LayoutSpec::Morton30, Builder::LbvhApetrei, threads, 8),
         );
         assert_eq!(s.bvh, a.bvh, "all identical, {threads} threads");
+    }
+}
+
+#[test]
+fn builds_in_a_reused_arena_equal_fresh_builds() {
+    // Larger, smaller and larger again, 32- and 64-bit codes, every builder, 1 and 2 threads:
+    // stale contents of the reused buffers must never show.
+    let mut arena = BuildArena::new();
+    let cases = [
+        ("mixed", 40_000, LayoutSpec::Emc64Var),
+        ("uniform", 5_000, LayoutSpec::Morton30),
+        ("city", 30_000, LayoutSpec::Emc64Var),
+        ("hair", 20_000, LayoutSpec::Emc32Var),
+    ];
+    for (scene, n, layout) in cases {
+        let aabbs = builtin(scene, n);
+        for builder in Builder::ALL {
+            for threads in [1, 2] {
+                let o = opts(layout, builder, threads, 8);
+                let fresh = build(&aabbs, o);
+                let warm = build_aabbs_in(aabbs.clone(), &o, &mut arena).unwrap();
+                let what = format!("{scene} {layout} {builder} {threads} threads");
+                assert_eq!(warm.bvh, fresh.bvh, "{what}");
+                assert_eq!(
+                    warm.report.sah_headline.to_bits(),
+                    fresh.report.sah_headline.to_bits(),
+                    "{what}"
+                );
+                arena.recycle(warm);
+            }
+        }
     }
 }
 

@@ -16,10 +16,10 @@ use crate::bvh::binned_sah::{build_binned_sah, BinnedSahError, DEFAULT_BINS};
 use crate::bvh::collapse::{collapse_bvh, emit};
 use crate::bvh::karras::build_karras;
 use crate::bvh::refit::{gather_sorted, refit, CollapseParams, RadixTree};
-use crate::bvh::sweep::sweep_tree;
-use crate::bvh::{sah_cost, sah_headline, Bvh, SahConstants};
+use crate::bvh::sweep::{sweep_tree, sweep_tree_in, SweepScratch};
+use crate::bvh::{sah_cost, sah_headline, Bvh, Node, SahConstants};
 use crate::scene::Scene;
-use crate::sort::{sort_pairs, RadixKey, SortError, SortReport};
+use crate::sort::{sort_pairs, sort_pairs_with, RadixKey, SortError, SortReport};
 
 /// Boxes per rayon task in the frame and encode phases.
 const CHUNK: usize = 1 << 14;
@@ -364,13 +364,6 @@ pub fn encode_codes(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u64>, BuildErro
     Ok(codes)
 }
 
-/// Codes of the boxes as `u32` (layouts of at most 32 bits).
-fn encode_codes_u32(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u32>, BuildError> {
-    let mut codes = crate::hugepage::filled(aabbs.len(), 0u32);
-    crate::encode::encode_parallel_u32(enc, aabbs, &mut codes)?;
-    Ok(codes)
-}
-
 /// Sort codes with their primitive ids: returns (sorted codes, ids in sorted order).
 pub fn sort_codes<K: RadixKey>(
     mut keys: Vec<K>,
@@ -399,30 +392,81 @@ pub fn lbvh_tree<K: RadixKey>(
     }
 }
 
-/// Build over a triangle mesh: every phase from triangle boxes on.
+/// The large buffers of a build, kept between builds: a build in an arena that held an earlier
+/// build of similar size writes into memory that is already mapped instead of faulting in
+/// fresh pages (about 140 bytes per primitive). Results do not depend on the arena's history.
+/// Hand a finished build's buffers back with [`BuildArena::recycle`].
+#[derive(Debug, Default)]
+pub struct BuildArena {
+    aabbs: Vec<Aabb>,
+    codes64: Vec<u64>,
+    codes32: Vec<u32>,
+    kbuf64: Vec<u64>,
+    kbuf32: Vec<u32>,
+    ids: Vec<u32>,
+    vbuf: Vec<u32>,
+    sweep: SweepScratch,
+    nodes: Vec<Node>,
+}
+
+impl BuildArena {
+    /// An empty arena (the first build in it allocates fresh buffers).
+    pub fn new() -> BuildArena {
+        BuildArena::default()
+    }
+
+    /// Take back the boxes, nodes and primitive order of a finished build for the next one.
+    pub fn recycle(&mut self, out: BuildOutput) {
+        self.aabbs = out.aabbs;
+        self.nodes = out.bvh.nodes;
+        self.ids = out.bvh.prim_indices;
+    }
+}
+
+/// Build over a triangle mesh: every phase from triangle boxes on, in fresh buffers.
 pub fn build_scene(scene: &Scene, opts: &BuildOptions) -> Result<BuildOutput, BuildError> {
+    build_scene_in(scene, opts, &mut BuildArena::new())
+}
+
+/// [`build_scene`] in the buffers of `arena`.
+pub fn build_scene_in(
+    scene: &Scene,
+    opts: &BuildOptions,
+    arena: &mut BuildArena,
+) -> Result<BuildOutput, BuildError> {
     let mut timed = Timed::new(opts.threads)?;
     let n = scene.indices.len();
     if n == 0 {
         return Err(BuildError::Empty);
     }
+    let mut out = std::mem::take(&mut arena.aabbs);
     let aabbs = timed.run(Phase::Aabb, || {
-        let mut out = crate::hugepage::filled(n, Aabb::EMPTY);
+        crate::hugepage::refill(&mut out, n, Aabb::EMPTY);
         crate::aabbs::triangle_aabbs(&scene.vertices, &scene.indices, &mut out);
         out
     });
-    build_timed(timed, aabbs, opts)
+    build_timed(timed, aabbs, opts, arena)
 }
 
-/// Build over primitive boxes (the AABB phase is then 0).
+/// Build over primitive boxes (the AABB phase is then 0), in fresh buffers.
 pub fn build_aabbs(aabbs: Vec<Aabb>, opts: &BuildOptions) -> Result<BuildOutput, BuildError> {
-    build_timed(Timed::new(opts.threads)?, aabbs, opts)
+    build_aabbs_in(aabbs, opts, &mut BuildArena::new())
+}
+
+/// [`build_aabbs`] in the buffers of `arena`.
+pub fn build_aabbs_in(
+    aabbs: Vec<Aabb>,
+    opts: &BuildOptions,
+    arena: &mut BuildArena,
+) -> Result<BuildOutput, BuildError> {
+    build_timed(Timed::new(opts.threads)?, aabbs, opts, arena)
 }
 
 fn build_timed(
     mut timed: Timed,
     aabbs: Vec<Aabb>,
     opts: &BuildOptions,
+    arena: &mut BuildArena,
 ) -> Result<BuildOutput, BuildError> {
     let n = aabbs.len();
     if n == 0 {
@@ -454,35 +498,66 @@ fn build_timed(
     let ab = &aabbs;
     let enc = timed.run(Phase::Encode, || encoder_for(ab, &opts.layout))?;
     let layout = Some(enc.layout().to_string());
+    let n = ab.len();
     let (bvh, sort, headline) = if enc.layout().fits_u32() {
-        let codes = timed.run(Phase::Encode, || encode_codes_u32(&enc, ab))?;
-        lbvh_phases(&mut timed, codes, ab, opts)?
+        let mut codes = std::mem::take(&mut arena.codes32);
+        timed.run(Phase::Encode, || {
+            crate::hugepage::refill(&mut codes, n, 0);
+            crate::encode::encode_parallel_u32(&enc, ab, &mut codes)
+        })?;
+        let mut kbuf = std::mem::take(&mut arena.kbuf32);
+        let r = lbvh_phases(&mut timed, codes, &mut kbuf, ab, opts, arena)?;
+        (arena.codes32, arena.kbuf32) = (r.3, kbuf);
+        (r.0, r.1, r.2)
     } else {
-        let codes = timed.run(Phase::Encode, || encode_codes(&enc, ab))?;
-        lbvh_phases(&mut timed, codes, ab, opts)?
+        let mut codes = std::mem::take(&mut arena.codes64);
+        timed.run(Phase::Encode, || {
+            crate::hugepage::refill(&mut codes, n, 0);
+            crate::encode::encode_parallel(&enc, ab, &mut codes)
+        })?;
+        let mut kbuf = std::mem::take(&mut arena.kbuf64);
+        let r = lbvh_phases(&mut timed, codes, &mut kbuf, ab, opts, arena)?;
+        (arena.codes64, arena.kbuf64) = (r.3, kbuf);
+        (r.0, r.1, r.2)
     };
     Ok(finish(timed, bvh, aabbs, opts, layout, sort, headline))
 }
 
-/// Sort, hierarchy, bounds and collapse; returns the BVH, the sort report and the headline SAH.
+/// Sort, hierarchy, bounds and collapse (sort scratch `kbuf` and the other buffers from
+/// `arena`); returns the BVH, the sort report, the headline SAH and the (sorted) key buffer.
+type LbvhResult<K> = (Bvh, SortReport, f64, Vec<K>);
+
 fn lbvh_phases<K: RadixKey>(
     timed: &mut Timed,
-    codes: Vec<K>,
+    mut keys: Vec<K>,
+    kbuf: &mut Vec<K>,
     aabbs: &[Aabb],
     opts: &BuildOptions,
-) -> Result<(Bvh, SortReport, f64), BuildError> {
+    arena: &mut BuildArena,
+) -> Result<LbvhResult<K>, BuildError> {
     let k = opts.collapse;
-    let (keys, order, sort) = timed.run(Phase::Sort, || sort_codes(codes))?;
+    let n = keys.len();
+    let mut order = std::mem::take(&mut arena.ids);
+    let vbuf = &mut arena.vbuf;
+    let sort = timed.run(Phase::Sort, || {
+        order.clear();
+        order.par_extend((0..n as u32).into_par_iter().with_min_len(1 << 14));
+        sort_pairs_with(&mut keys, &mut order, kbuf, vbuf)
+    })?;
     if opts.builder == Builder::Atrbvh {
         let bvh = atrbvh_phases(timed, &keys, aabbs, order, &k)?;
-        return Ok((bvh.0, sort, bvh.1));
+        return Ok((bvh.0, sort, bvh.1, keys));
     }
     if opts.builder == Builder::Lbvh {
-        let swept = timed.run(Phase::Hierarchy, || sweep_tree(&keys, order, aabbs, &k));
-        timed.pool.install(move || drop(keys));
+        let scratch = &mut arena.sweep;
+        let swept = timed.run(Phase::Hierarchy, || {
+            sweep_tree_in(&keys, order, aabbs, &k, scratch)
+        });
         let headline = timed.pool.install(|| swept.sah_headline(aabbs));
-        let bvh = timed.run(Phase::Collapse, || swept.emit());
-        return Ok((bvh, sort, headline));
+        let nodes = std::mem::take(&mut arena.nodes);
+        let scratch = &mut arena.sweep;
+        let bvh = timed.run(Phase::Collapse, || swept.emit_in(nodes, scratch));
+        return Ok((bvh, sort, headline, keys));
     }
     let (tree, sorted) = match opts.builder {
         Builder::LbvhApetrei => timed.run(Phase::Hierarchy, || {
@@ -499,11 +574,10 @@ fn lbvh_phases<K: RadixKey>(
             (t, sorted)
         }
     };
-    drop(keys);
     let headline = timed.pool.install(|| tree.sah_headline(aabbs));
     let (bvh, _depth) = timed.run(Phase::Collapse, || emit(&tree, &sorted, order));
     timed.pool.install(move || drop((tree, sorted)));
-    Ok((bvh, sort, headline))
+    Ok((bvh, sort, headline, keys))
 }
 
 /// `atrbvh` after the sort: the Karras tree (by the sweep), the one-primitive-per-leaf BVH, treelet

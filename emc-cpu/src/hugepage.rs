@@ -51,6 +51,17 @@ pub fn filled<T: Copy + Send + Sync>(n: usize, x: T) -> Vec<T> {
     v
 }
 
+/// Make `v` hold `n` copies of `x`, reusing its allocation when it is large enough (its pages
+/// are then already mapped: a memset instead of page faults); else as [`filled`].
+pub fn refill<T: Copy + Send + Sync>(v: &mut Vec<T>, n: usize, x: T) {
+    if v.capacity() >= n {
+        v.clear();
+        v.resize(n, x);
+    } else {
+        *v = filled(n, x);
+    }
+}
+
 /// A vector of `n` values made by `f`, filled in parallel after the huge-page hint.
 pub fn from_fn<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
     let mut v: Vec<T> = Vec::with_capacity(n);

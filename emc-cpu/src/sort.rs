@@ -127,6 +127,18 @@ pub fn sort_pairs<K: RadixKey>(
     keys: &mut Vec<K>,
     vals: &mut Vec<u32>,
 ) -> Result<SortReport, SortError> {
+    sort_pairs_with(keys, vals, &mut Vec::new(), &mut Vec::new())
+}
+
+/// [`sort_pairs`] with caller-owned scratch buffers (their contents are overwritten; a build
+/// arena passes the same ones again so that their pages are already mapped). On return the
+/// scratch holds the other ping-pong buffers, of the input's length.
+pub fn sort_pairs_with<K: RadixKey>(
+    keys: &mut Vec<K>,
+    vals: &mut Vec<u32>,
+    kscratch: &mut Vec<K>,
+    vscratch: &mut Vec<u32>,
+) -> Result<SortReport, SortError> {
     let n = keys.len();
     if vals.len() != n {
         return Err(SortError::LengthMismatch {
@@ -161,8 +173,10 @@ pub fn sort_pairs<K: RadixKey>(
         }
     }
 
-    let mut kbuf: Vec<K> = crate::hugepage::filled(n, K::default());
-    let mut vbuf: Vec<u32> = crate::hugepage::filled(n, 0);
+    let kbuf: &mut Vec<K> = kscratch;
+    let vbuf: &mut Vec<u32> = vscratch;
+    crate::hugepage::refill(kbuf, n, K::default());
+    crate::hugepage::refill(vbuf, n, 0);
     let mut first_done = false;
     for pass in 0..K::BYTES {
         if totals[pass].contains(&n) {
@@ -186,8 +200,8 @@ pub fn sort_pairs<K: RadixKey>(
         let mut per_chunk_k: Vec<Vec<&mut [K]>> = (0..hists.len()).map(|_| Vec::new()).collect();
         let mut per_chunk_v: Vec<Vec<&mut [u32]>> = (0..hists.len()).map(|_| Vec::new()).collect();
         {
-            let mut krest: &mut [K] = &mut kbuf;
-            let mut vrest: &mut [u32] = &mut vbuf;
+            let mut krest: &mut [K] = kbuf;
+            let mut vrest: &mut [u32] = vbuf;
             for b in 0..RADIX {
                 for (c, h) in hists.iter().enumerate() {
                     let len = h[b] as usize;
@@ -214,8 +228,8 @@ pub fn sort_pairs<K: RadixKey>(
                 };
                 scatter_chunk(kc, vc, pass, kd, vd);
             });
-        std::mem::swap(keys, &mut kbuf);
-        std::mem::swap(vals, &mut vbuf);
+        std::mem::swap(keys, kbuf);
+        std::mem::swap(vals, vbuf);
         report.passes += 1;
     }
     Ok(report)

@@ -284,6 +284,14 @@ pub struct SweepOutput {
     pub sah_headline: f64,
 }
 
+/// Buffers of the sweep kept between builds (see `build::BuildArena`): the per-split areas and
+/// the record buffers of the tasks.
+#[derive(Debug, Default)]
+pub struct SweepScratch {
+    areas: Vec<f64>,
+    records: Vec<Vec<Node>>,
+}
+
 /// Build the radix tree with bounds, costs and collapse decisions over `keys` (sorted
 /// ascending, 1 to `u32::MAX` of them), `order` (sorted position → primitive id, as long as
 /// `keys`) and the primitive boxes `aabbs` (indexed by primitive id), on the current rayon pool.
@@ -294,13 +302,26 @@ pub fn sweep_tree<K: RadixKey>(
     aabbs: &[Aabb],
     k: &CollapseParams,
 ) -> Swept {
+    sweep_tree_in(keys, order, aabbs, k, &mut SweepScratch::default())
+}
+
+/// [`sweep_tree`] with buffers taken from `scratch` (give them back with [`Swept::emit_in`]).
+pub fn sweep_tree_in<K: RadixKey>(
+    keys: &[K],
+    order: Vec<u32>,
+    aabbs: &[Aabb],
+    k: &CollapseParams,
+    scratch: &mut SweepScratch,
+) -> Swept {
     let n = keys.len();
     assert!(
         n >= 1 && order.len() == n,
         "sweep_tree needs n ≥ 1 keys and as many ids"
     );
     let threads = rayon::current_num_threads();
-    let mut areas: Vec<f64> = zeroed(n - 1);
+    // Every split's area is written (by its task or as a top node) before it is read.
+    let mut areas = std::mem::take(&mut scratch.areas);
+    crate::hugepage::refill(&mut areas, n - 1, 0.0);
     let target = (n / (threads * 8)).max(MIN_TASK);
 
     // Top of the tree, down to leaf ranges of at most `target` (none when one task does).
@@ -367,16 +388,25 @@ pub fn sweep_tree<K: RadixKey>(
         rest = tail;
         offset = hi;
     }
+    // One record buffer per task, reused from earlier builds where there are some.
+    let mut recs: Vec<Vec<Node>> = Vec::with_capacity(jobs.len());
+    for _ in 0..jobs.len() {
+        recs.push(scratch.records.pop().unwrap_or_default());
+    }
     let tasks: Vec<(Closed, Vec<Node>)> = if jobs.len() == 1 {
         let (lo, hi, a) = jobs.pop().expect("one job");
-        let mut rec = Vec::with_capacity(2 * (hi - lo) + 1);
+        let mut rec = recs.pop().expect("one buffer");
+        rec.clear();
+        rec.reserve(2 * (hi - lo) + 1);
         let c = input.sweep(lo, hi, &mut rec, a, &mut Vec::new());
         vec![(c, rec)]
     } else {
         jobs.into_par_iter()
+            .zip(recs)
             .with_max_len(1)
-            .map_init(Vec::new, |stack, (lo, hi, a)| {
-                let mut rec = Vec::with_capacity(2 * (hi - lo) + 1);
+            .map_init(Vec::new, |stack, ((lo, hi, a), mut rec)| {
+                rec.clear();
+                rec.reserve(2 * (hi - lo) + 1);
                 let c = input.sweep(lo, hi, &mut rec, a, stack);
                 (c, rec)
             })
@@ -432,8 +462,15 @@ impl Swept {
     /// Write the collapsed BVH in depth-first order (left child right after its parent), tasks
     /// in parallel on the current rayon pool.
     pub fn emit(self) -> Bvh {
+        self.emit_in(Vec::new(), &mut SweepScratch::default())
+    }
+
+    /// [`Swept::emit`] into `nodes` (its allocation reused when large enough) and giving the
+    /// sweep's buffers back to `scratch`.
+    pub fn emit_in(self, mut nodes: Vec<Node>, scratch: &mut SweepScratch) -> Bvh {
         let Swept {
             order,
+            areas,
             tops,
             top_data,
             tasks,
@@ -441,7 +478,13 @@ impl Swept {
             ..
         } = self;
         let total = data_of(root, &top_data, &tasks).out as usize;
-        let mut nodes: Vec<Node> = zeroed(total);
+        // Every output slot is written below (top nodes, then each task's run).
+        if nodes.capacity() >= total {
+            nodes.clear();
+            nodes.resize(total, Node::default());
+        } else {
+            nodes = zeroed(total);
+        }
         // Top nodes, depth first; tasks get their output positions.
         let mut placed: Vec<(u32, u32)> = Vec::new(); // (task, position)
         let mut stack = vec![(root, 0u32)];
@@ -483,7 +526,8 @@ impl Swept {
                 .with_max_len(1)
                 .for_each(|(rec, dst, base)| relabel(rec, dst, base));
         }
-        drop(tasks);
+        scratch.areas = areas;
+        scratch.records.extend(tasks.into_iter().map(|t| t.1));
         Bvh {
             nodes,
             prim_indices: order,

@@ -4,7 +4,9 @@
 use anyhow::{bail, Context};
 use emc_core::LayoutSpec;
 
-use crate::build::{build_scene, BuildOptions, BuildOutput, Builder, Phase};
+use crate::build::{
+    build_scene_in, BuildArena, BuildOptions, BuildOutput, BuildReport, Builder, Phase,
+};
 use crate::bvh::refit::CollapseParams;
 use crate::scene::{load_with, SceneOptions};
 
@@ -29,9 +31,13 @@ pub struct BuildArgs {
     /// Largest leaf the SAH collapse may create (1 keeps one primitive per leaf).
     #[arg(long, default_value_t = 8)]
     pub leaf_size: u32,
-    /// Build this many times and report the run with the median thread-CPU total.
+    /// Build this many times and report the run with the median thread-CPU total. Builds after
+    /// the first reuse the previous build's buffers (warm) unless `--cold` is given.
     #[arg(long, default_value_t = 1)]
     pub repeat: usize,
+    /// Give every repeated build fresh buffers (as a first build in a process has).
+    #[arg(long)]
+    pub cold: bool,
     /// Skip the structural check of the finished BVH.
     #[arg(long)]
     pub no_validate: bool,
@@ -76,25 +82,48 @@ pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
             scene.dropped_nonfinite
         );
     }
-    let mut runs: Vec<BuildOutput> = Vec::with_capacity(args.repeat);
+    // Every build gives the same BVH (builds are deterministic); the last one is validated.
+    let mut reports: Vec<BuildReport> = Vec::with_capacity(args.repeat);
+    let mut arena = BuildArena::new();
+    let mut last: Option<BuildOutput> = None;
     for _ in 0..args.repeat {
-        runs.push(build_scene(&scene, &opts)?);
+        if args.cold {
+            drop(last.take());
+            arena = BuildArena::new();
+        } else if let Some(prev) = last.take() {
+            arena.recycle(prev);
+        }
+        let out = build_scene_in(&scene, &opts, &mut arena)?;
+        reports.push(out.report.clone());
+        last = Some(out);
     }
-    runs.sort_by(|a, b| a.report.total().cpu_ms.total_cmp(&b.report.total().cpu_ms));
-    let out = &runs[runs.len() / 2];
-    let r = &out.report;
+    let Some(out) = last else {
+        bail!("no build ran");
+    };
+    let first = reports[0].clone();
+    // Warm runs are those after the first (unless --cold); the median is taken over them.
+    let mut pool: Vec<BuildReport> = if args.cold || reports.len() == 1 {
+        reports
+    } else {
+        reports.split_off(1)
+    };
+    let count = pool.len();
+    pool.sort_by(|a, b| a.total().cpu_ms.total_cmp(&b.total().cpu_ms));
+    let r = &pool[count / 2];
+    let what = match (args.repeat, args.cold) {
+        (1, _) => String::from(", one cold build (fresh buffers)"),
+        (_, true) => format!(", median of {count} cold builds (fresh buffers each) by CPU time"),
+        _ => format!(
+            ", median of {count} warm builds (buffers reused from the previous build) by CPU time"
+        ),
+    };
     println!(
-        "scene {}: {} triangles; builder {}, layout {}, threads {}{}",
+        "scene {}: {} triangles; builder {}, layout {}, threads {}{what}",
         scene.name,
         r.prims,
         r.builder,
         r.layout.as_deref().unwrap_or("(none)"),
         r.threads,
-        if args.repeat > 1 {
-            format!(", median of {} runs by CPU time", args.repeat)
-        } else {
-            String::new()
-        }
     );
     println!(
         "{:<10} {:>10} {:>10} {:>8}",
@@ -117,6 +146,18 @@ pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
     }
     let t = r.total();
     println!("{:<10} {:>10.2} {:>10.2}", "total", t.wall_ms, t.cpu_ms);
+    if args.repeat > 1 && !args.cold {
+        let cpu: Vec<String> = Phase::ALL
+            .iter()
+            .map(|&p| format!("{} {:.2}", p.name(), first.phase(p).cpu_ms))
+            .collect();
+        println!(
+            "first (cold) build: cpu ms [{}] total {:.2}, {:.2} Mprims per thread-CPU-second",
+            cpu.join(", "),
+            first.total().cpu_ms,
+            first.mprims_per_cpu_s()
+        );
+    }
     println!(
         "throughput: {:.2} Mprims per thread-CPU-second, {:.2} Mprims per wall-second",
         r.mprims_per_cpu_s(),
