@@ -346,7 +346,8 @@ pub fn sweep_tree_in<K: RadixKey>(
             })
             .collect();
         // (leaf range, slot to fill: None = root, Some((top, is_right)))
-        let mut stack: Vec<((usize, usize), Option<(usize, bool)>)> = vec![((0, n - 1), None)];
+        type Pending = ((usize, usize), Option<(usize, bool)>);
+        let mut stack: Vec<Pending> = vec![((0, n - 1), None)];
         while let Some(((lo, hi), slot)) = stack.pop() {
             let r = if hi - lo < target {
                 ranges.push((lo, hi));
