@@ -135,43 +135,59 @@ pub(super) unsafe fn run_pdep<const W32: bool>(
     out: *mut u8,
 ) -> usize {
     let c = Consts::new(k);
+    // Software-pipelined: step g quantises its pair into `next` while the pdeps of the
+    // previous pair (in `q`) run, so the two dependency chains overlap.
+    let mut q = [[0u32; 8]; 4];
+    let mut prev: Option<(usize, usize)> = None; // (first code, codes) held in `q`
     let mut g = 0;
-    while g < n4 {
-        let pa = src.wrapping_add(24 * g);
-        let pairs = n4 - g >= 2;
-        let pb = if pairs { pa.wrapping_add(24) } else { pa };
-        // SAFETY: groups g (and g + 1 when `pairs`) lie inside `src`.
-        let ((qa, da), (qb, db)) = unsafe { (positions4(k, pa, true), positions4(k, pb, true)) };
-        let s = size8(&c, _mm512_insertf64x4::<1>(_mm512_castpd256_pd512(da), db));
-        // q[channel][lane]: lanes 0-3 from group g, 4-7 from group g + 1 (or g again).
-        let mut q = [[0u32; 8]; 4];
-        for ch in 0..3 {
-            let row = q[ch].as_mut_ptr() as *mut __m128i;
-            // SAFETY: each row holds eight u32: two stores of four.
-            unsafe {
-                _mm_storeu_si128(row, qa[ch]);
-                _mm_storeu_si128(row.add(1), qb[ch]);
+    loop {
+        let mut next = [[0u32; 8]; 4];
+        let cur = if g < n4 {
+            let pa = src.wrapping_add(24 * g);
+            let pairs = n4 - g >= 2;
+            let pb = if pairs { pa.wrapping_add(24) } else { pa };
+            // SAFETY: groups g (and g + 1 when `pairs`) lie inside `src`.
+            let ((qa, da), (qb, db)) =
+                unsafe { (positions4(k, pa, true), positions4(k, pb, true)) };
+            let s = size8(&c, _mm512_insertf64x4::<1>(_mm512_castpd256_pd512(da), db));
+            for ch in 0..3 {
+                let row = next[ch].as_mut_ptr() as *mut __m128i;
+                // SAFETY: each row holds eight u32: two stores of four.
+                unsafe {
+                    _mm_storeu_si128(row, qa[ch]);
+                    _mm_storeu_si128(row.add(1), qb[ch]);
+                }
             }
-        }
-        // SAFETY: the size row holds eight u32.
-        unsafe { _mm256_storeu_si256(q[3].as_mut_ptr() as *mut __m256i, s) };
-        let lanes = if pairs { 8 } else { 4 };
-        for l in 0..lanes {
-            let code = _pdep_u64(q[0][l] as u64, m[0])
-                | _pdep_u64(q[1][l] as u64, m[1])
-                | _pdep_u64(q[2][l] as u64, m[2])
-                | _pdep_u64(q[3][l] as u64, m[3]);
-            let i = 4 * g + l;
-            // SAFETY: `i < 4·n4` by the contract above.
-            unsafe {
-                if W32 {
-                    (out as *mut u32).add(i).write_unaligned(code as u32);
-                } else {
-                    (out as *mut u64).add(i).write_unaligned(code);
+            // SAFETY: the size row holds eight u32.
+            unsafe { _mm256_storeu_si256(next[3].as_mut_ptr() as *mut __m256i, s) };
+            let lanes = if pairs { 8 } else { 4 };
+            g += lanes / 4;
+            Some((4 * g - lanes, lanes))
+        } else {
+            None
+        };
+        if let Some((first, lanes)) = prev {
+            for l in 0..lanes {
+                let code = _pdep_u64(q[0][l] as u64, m[0])
+                    | _pdep_u64(q[1][l] as u64, m[1])
+                    | _pdep_u64(q[2][l] as u64, m[2])
+                    | _pdep_u64(q[3][l] as u64, m[3]);
+                let i = first + l;
+                // SAFETY: `i < 4·n4` by the contract above.
+                unsafe {
+                    if W32 {
+                        (out as *mut u32).add(i).write_unaligned(code as u32);
+                    } else {
+                        (out as *mut u64).add(i).write_unaligned(code);
+                    }
                 }
             }
         }
-        g += if pairs { 2 } else { 1 };
+        if cur.is_none() {
+            break;
+        }
+        q = next;
+        prev = cur;
     }
     4 * n4
 }
