@@ -1,6 +1,7 @@
-//! Tracer benchmarks: single-ray primary and AO throughput of the 4-wide BVH on one thread
-//! (the per-thread figure the protocol compares), SIMD node test against the scalar one in the
-//! same run, on a built-in scene and (when present) the shared `sionna-san-francisco`.
+//! Tracer benchmarks: single-ray primary and AO throughput of the 8-wide (AVX2) and 4-wide
+//! (SSE) trees on one thread (the per-thread figure the protocol compares), each against its
+//! scalar node test in the same run, on a built-in scene and (when present) the shared
+//! `sionna-san-francisco`.
 //! Run: `cargo bench -p emc-benches --bench trace` (set `EMC_TRACE_RES` for another image size).
 
 use criterion::{criterion_group, criterion_main, BenchmarkId, Criterion, Throughput};
@@ -62,7 +63,12 @@ fn bench_trace(c: &mut Criterion) {
         let mut g = c.benchmark_group(format!("trace/{}", w.name));
         g.sample_size(10);
         let bvh = w.accel.wide_bvh();
-        for kind in [NodeTest::Simd, NodeTest::Scalar] {
+        for kind in [
+            NodeTest::Avx2,
+            NodeTest::Simd,
+            NodeTest::Scalar8,
+            NodeTest::Scalar,
+        ] {
             g.throughput(Throughput::Elements(w.primary.len() as u64));
             g.bench_function(BenchmarkId::new("primary", format!("{kind:?}")), |b| {
                 b.iter(|| {
