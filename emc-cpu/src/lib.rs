@@ -10,6 +10,7 @@ pub mod cli;
 pub mod hugepage;
 pub mod paper;
 pub mod encode;
+pub mod fuzzing;
 pub mod scene;
 pub mod sort;
 pub mod trace;
