@@ -7,12 +7,11 @@ use std::time::Instant;
 use emc_core::{Aabb, Frame, LayoutSpec, Normalization};
 use glam::Vec3;
 
-use crate::build::{
-    build_scene, encode_codes, lbvh_tree, scene_bounds, sort_codes, BuildOptions, Builder,
-};
+use crate::build::{build_scene, encode_codes, scene_bounds, sort_codes, BuildOptions, Builder};
 use crate::bvh::atrbvh::{restructure, AtrConfig};
-use crate::bvh::collapse::{collapse_bvh, emit};
-use crate::bvh::refit::{gather_sorted, CollapseParams};
+use crate::bvh::collapse::collapse_bvh;
+use crate::bvh::refit::CollapseParams;
+use crate::bvh::sweep::sweep_tree;
 use crate::bvh::{sah_cost, sah_headline, Bvh, SahConstants};
 use crate::scene::Scene;
 use crate::trace::workload::{all_ao_rays, trace_closest, trace_occluded, Camera, SceneFrame};
@@ -160,7 +159,9 @@ pub fn build(
 }
 
 /// The LBVH (or ATRBVH) of a cube-normalised frame, by the pipeline's own phases: boxes,
-/// frame, codes, radix sort, Karras tree with bottom-up refit, emission.
+/// frame, codes, radix sort, the Karras tree by the split sweep, emission (and for `atrbvh`
+/// treelet restructuring and the SAH collapse). The sweep's headline SAH is taken inside the
+/// timed section, as the pipeline does for `lbvh`.
 fn build_cube(
     scene: &Scene,
     builder: PaperBuilder,
@@ -190,15 +191,16 @@ fn build_cube(
             let layout = enc.layout().to_string();
             let codes = encode_codes(&enc, &aabbs)?;
             let (keys, order, _) = sort_codes(codes)?;
-            let sorted = gather_sorted(&aabbs, &order);
-            let tree = lbvh_tree(Builder::Lbvh, &keys, &sorted, &tree_k);
-            let (mut bvh, _) = emit(&tree, &sorted, order);
+            let swept = sweep_tree(&keys, order, &aabbs, &tree_k);
+            drop(keys);
             if atr {
+                let mut bvh = swept.emit();
                 restructure(&mut bvh, &aabbs, &AtrConfig::default())?;
                 let c = collapse_bvh(&bvh, &collapse);
                 Ok((c, Some(bvh), layout, None))
             } else {
-                Ok((bvh, None, layout, Some((tree, aabbs))))
+                let headline = swept.sah_headline(&aabbs);
+                Ok((swept.emit(), None, layout, Some(headline)))
             }
         },
     )?;
@@ -207,7 +209,7 @@ fn build_cube(
     let (bvh, plain, layout, tree) = r;
     let headline = match (plain, tree) {
         (Some(p), _) => pool.install(|| sah_headline(&p)),
-        (None, Some((t, aabbs))) => pool.install(|| t.sah_headline(&aabbs)),
+        (None, Some(h)) => h,
         (None, None) => f64::NAN,
     };
     Ok(Built {

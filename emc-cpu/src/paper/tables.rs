@@ -443,7 +443,7 @@ fn shared_md(res: &PaperResults, out: &mut String) {
     }
     let _ = writeln!(
         out,
-        "| scene | triangles | LBVH `emc64-var` vs `morton63`: SAH | SAH collapsed | primary Mrays/s | seed counterpart | seed LBVH var cost |"
+        "| scene | triangles | LBVH `emc64-var` vs `morton63`: SAH | SAH collapsed | primary Mrays per CPU-s | seed counterpart | seed LBVH var cost |"
     );
     let _ = writeln!(out, "|---|---:|---:|---:|---:|---|---:|");
     for s in shared {
@@ -498,8 +498,9 @@ pub fn markdown(res: &PaperResults) -> String {
          BVH excluded. Mrays/s are rays per thread-CPU second. `morton63-cube` is `morton63` with positions normalised to \
          the cube of the largest extent; the build pipeline has no normalisation option, so this \
          variant is assembled from the pipeline's public phases (boxes, frame, codes, radix \
-         sort, Karras tree with bottom-up refit, emission, plus restructuring for `atrbvh`): \
-         compare its SAH with `morton63`, its build time only roughly.",
+         sort, the Karras tree by the split sweep, emission, plus restructuring for `atrbvh`) \
+         without the pipeline's buffer reuse: compare its SAH with `morton63`, its build time \
+         only roughly.",
         res.scenes
             .iter()
             .map(|s| format!("{} ({} triangles)", s.name, s.prims))
