@@ -156,7 +156,7 @@ impl Accel {
         Ok(Accel { bvh, tris, pool })
     }
 
-    /// Wrap a BVH2 from any builder (validated against `tris`, then collapsed to 4-wide).
+    /// Wrap a BVH2 from any builder (validated against `tris`, then collapsed to 4- and 8-wide).
     pub fn from_bvh2(bvh2: &Bvh, tris: Vec<[Vec3; 3]>) -> Result<Accel, TraceError> {
         let bvh = WideBvh::from_bvh2(bvh2, &tris)?;
         Ok(Accel {

@@ -1,6 +1,6 @@
-//! The ray tracer: a BVH2 from any builder becomes a 4-wide SIMD BVH ([`wide`]), traced with
-//! watertight geometry ([`intersect`], [`traverse`]) by the benchmark workloads ([`workload`])
-//! and the library API ([`api`]). `emc render` drives it from the command line.
+//! The ray tracer: a BVH2 from any builder becomes 4- and 8-wide SIMD BVHs ([`wide`]),
+//! traced with watertight geometry ([`intersect`], [`traverse`]) by the benchmark workloads
+//! ([`workload`]) and the library API ([`api`]). `emc render` drives it from the command line.
 
 pub mod api;
 pub mod image;
