@@ -1,11 +1,14 @@
 //! The whole build pipeline (boxes → collapsed BVH) per builder on 1 and 2 threads, on
 //! pbrt-bathroom (or `builtin:mixed` when the shared scenes are absent). Before criterion's
-//! wall-clock medians it prints each builder's per-phase thread-CPU report (median of 5):
+//! wall-clock medians it prints each builder's per-phase thread-CPU report (median of 5), for
+//! cold builds (fresh buffers) and warm ones (a `BuildArena` holding the previous build's):
 //! `cargo bench -p emc-benches --bench build`.
 
 use criterion::{BenchmarkId, Criterion, Throughput};
 use emc_core::{Aabb, LayoutSpec};
-use emc_cpu::build::{build_aabbs, BuildOptions, BuildReport, Builder, Phase};
+use emc_cpu::build::{
+    build_aabbs, build_aabbs_in, BuildArena, BuildOptions, BuildReport, Builder, Phase,
+};
 
 fn input() -> (String, Vec<Aabb>) {
     let spec = if emc_cpu::scene::shared_scene_path("pbrt-bathroom").is_some() {
@@ -27,18 +30,40 @@ fn opts(builder: Builder, threads: usize) -> BuildOptions {
     }
 }
 
-/// Per-phase thread-CPU milliseconds of the median (by total CPU) of 5 builds.
+/// Per-phase thread-CPU milliseconds of the median (by total CPU) of 5 builds, cold and warm.
 fn cpu_report(name: &str, boxes: &[Aabb]) {
     for builder in Builder::ALL {
-        let mut base = None;
-        for threads in [1usize, 2] {
-            let mut runs: Vec<BuildReport> = (0..5)
-                .map(|_| {
+        for warm in [false, true] {
+            report_one(name, boxes, builder, warm);
+        }
+    }
+}
+
+fn report_one(name: &str, boxes: &[Aabb], builder: Builder, warm: bool) {
+    let label = if warm { "warm" } else { "cold" };
+    let mut base = None;
+    for threads in [1usize, 2] {
+        let mut arena = BuildArena::new();
+        if warm {
+            let first = build_aabbs_in(boxes.to_vec(), &opts(builder, threads), &mut arena);
+            arena.recycle(first.expect("valid boxes"));
+        }
+        let mut runs: Vec<BuildReport> = (0..5)
+            .map(|_| {
+                if warm {
+                    let out = build_aabbs_in(boxes.to_vec(), &opts(builder, threads), &mut arena)
+                        .expect("valid boxes");
+                    let r = out.report.clone();
+                    arena.recycle(out);
+                    r
+                } else {
                     build_aabbs(boxes.to_vec(), &opts(builder, threads))
                         .expect("valid boxes")
                         .report
-                })
-                .collect();
+                }
+            })
+            .collect();
+        {
             runs.sort_by(|a, b| a.total().cpu_ms.total_cmp(&b.total().cpu_ms));
             let r = &runs[2];
             let phases: Vec<String> = Phase::ALL
@@ -49,7 +74,7 @@ fn cpu_report(name: &str, boxes: &[Aabb]) {
             let ratio = base.map(|b: f64| cpu / b).unwrap_or(1.0);
             base.get_or_insert(cpu);
             println!(
-                "{name} {builder} {threads}T: cpu ms [{}] total {cpu:.1} (x{ratio:.2} of 1T), \
+                "{name} {builder} {threads}T {label}: cpu ms [{}] total {cpu:.1} (x{ratio:.2} of 1T), \
                  wall {:.1} ms, {:.2} Mprims/CPU-s",
                 phases.join(", "),
                 r.total().wall_ms,
