@@ -230,3 +230,35 @@ fn bad_configurations_are_refused() {
     cfg.scenes = vec!["builtin:city".into(), "builtin:city".into()];
     assert!(matches!(measure_all(&cfg), Err(PaperError::Duplicate(_))));
 }
+
+/// The build issue's claim on a shared scene, through the paper's own build path: `emc64-var`
+/// lowers the LBVH SAH (both figures) versus `morton63`. Skips when the scenes are absent.
+#[test]
+fn emc64_var_lowers_lbvh_sah_on_a_shared_scene() {
+    let name = "sionna-san-francisco";
+    if emc_cpu::scene::shared_scene_path(name).is_none() {
+        eprintln!("skipping: shared scene {name} not found (set EMC_SHARED_DIR)");
+        return;
+    }
+    let scene = emc_cpu::scene::load(name).expect("loads");
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .expect("pool");
+    let build = |spec| {
+        emc_cpu::paper::measure::build(
+            &scene,
+            PaperBuilder::Lbvh,
+            &emc_cpu::paper::measure::Variant::plain(spec),
+            &pool,
+        )
+        .expect("builds")
+    };
+    let (m, v) = (build(LayoutSpec::Morton63), build(LayoutSpec::Emc64Var));
+    eprintln!(
+        "{name}: LBVH SAH morton63 {:.3} / {:.3}, emc64-var {:.3} / {:.3}",
+        m.sah_headline, m.sah_collapsed, v.sah_headline, v.sah_collapsed
+    );
+    assert!(v.sah_headline < m.sah_headline);
+    assert!(v.sah_collapsed < m.sah_collapsed);
+}
