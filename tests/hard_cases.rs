@@ -38,7 +38,7 @@ fn check_monotone(label: &str, aabbs: &[Aabb], layout: &LayoutSpec) {
         .par_iter()
         .map(|b| enc.decode(enc.encode(b)))
         .collect();
-    for axis in 0..3 {
+    for axis in [0usize, 1, 2] {
         let key = |i: usize| aabbs[i].min[axis] as f64 + aabbs[i].max[axis] as f64;
         let mut order: Vec<usize> = (0..aabbs.len()).collect();
         order.par_sort_unstable_by(|&a, &b| key(a).total_cmp(&key(b)));

@@ -171,7 +171,7 @@ pub fn check_encoder(data: &[u8]) {
     while !r.is_empty() && boxes.len() < 64 {
         boxes.push(raw_box(&mut r));
     }
-    let reference = Encoder::with_backend(layout.clone(), &frame, Backend::Reference)
+    let reference = Encoder::with_backend(layout, &frame, Backend::Reference)
         .expect("the reference backend always exists");
     let want: Vec<u64> = boxes.iter().map(|b| reference.encode(b)).collect();
     for (b, &c) in boxes.iter().zip(&want) {
@@ -187,7 +187,7 @@ pub fn check_encoder(data: &[u8]) {
         );
     }
     for backend in Backend::ALL {
-        let Ok(enc) = Encoder::with_backend(layout.clone(), &frame, backend) else {
+        let Ok(enc) = Encoder::with_backend(layout, &frame, backend) else {
             continue;
         };
         for (b, &c) in boxes.iter().zip(&want) {
