@@ -11,7 +11,7 @@ use emc_cpu::build::{build_aabbs, BuildOptions, Builder};
 use emc_cpu::bvh::atrbvh::{restructure, AtrConfig};
 use emc_cpu::bvh::refit::CollapseParams;
 use emc_cpu::bvh::{sah_cost, Bvh, SahConstants};
-use emc_cpu::encode::thread_cpu_time;
+use emc_cpu::cputime::thread_cpu_time;
 
 /// The scene's name, its boxes and its morton63 LBVH with one primitive per leaf.
 fn input() -> (String, Vec<Aabb>, Bvh) {
@@ -40,11 +40,6 @@ fn pool(threads: usize) -> rayon::ThreadPool {
         .expect("thread pool")
 }
 
-/// Thread-CPU time of every worker of `p` (the calling thread waits in `install` and is idle).
-fn pool_cpu(p: &rayon::ThreadPool) -> Duration {
-    p.broadcast(|_| thread_cpu_time()).into_iter().sum()
-}
-
 /// Median wall and median pool CPU time of `RUNS` restructurings per thread count, as ms per
 /// million primitives; also the share spent in the input check and the two SAH sums.
 fn cpu_report(name: &str, aabbs: &[Aabb], bvh: &Bvh) {
@@ -58,11 +53,11 @@ fn cpu_report(name: &str, aabbs: &[Aabb], bvh: &Bvh) {
         let mut stats = None;
         for _ in 0..RUNS + 1 {
             let mut t = bvh.clone();
-            let c0 = pool_cpu(&p);
+            let c0 = emc_cpu::cputime::pool_cpu_time(&p);
             let w0 = Instant::now();
             let s = p.install(|| restructure(&mut t, aabbs, &cfg).expect("valid input"));
             walls.push(w0.elapsed().as_secs_f64() * 1e3);
-            cpus.push((pool_cpu(&p) - c0).as_secs_f64() * 1e3);
+            cpus.push((emc_cpu::cputime::pool_cpu_time(&p) - c0).as_secs_f64() * 1e3);
             stats = Some(s);
         }
         // The first run warms the pool and the allocator.

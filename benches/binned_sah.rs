@@ -21,16 +21,6 @@ fn input() -> (String, Vec<Aabb>) {
     (spec.to_string(), scene.aabbs())
 }
 
-/// CPU time consumed so far by every live thread of this process (Linux `schedstat`, ns).
-fn process_cpu() -> Option<Duration> {
-    let mut ns = 0u64;
-    for task in std::fs::read_dir("/proc/self/task").ok()? {
-        let stat = std::fs::read_to_string(task.ok()?.path().join("schedstat")).ok()?;
-        ns += stat.split_whitespace().next()?.parse::<u64>().ok()?;
-    }
-    Some(Duration::from_nanos(ns))
-}
-
 fn pool(threads: usize) -> rayon::ThreadPool {
     rayon::ThreadPoolBuilder::new()
         .num_threads(threads)
@@ -48,14 +38,16 @@ fn cpu_report(name: &str, boxes: &[Aabb]) {
         let p = pool(threads);
         p.install(|| build_binned_sah(boxes, DEFAULT_BINS).expect("valid boxes"));
         let mut walls = Vec::with_capacity(RUNS);
-        let cpu0 = process_cpu();
+        let cpu0 = emc_cpu::cputime::process_cpu_time();
         for _ in 0..RUNS {
             let t = Instant::now();
             let bvh = p.install(|| build_binned_sah(boxes, DEFAULT_BINS).expect("valid boxes"));
             walls.push(t.elapsed());
             drop(bvh);
         }
-        let cpu = process_cpu().zip(cpu0).map(|(b, a)| (b - a) / RUNS as u32);
+        let cpu = emc_cpu::cputime::process_cpu_time()
+            .zip(cpu0)
+            .map(|(b, a)| (b - a) / RUNS as u32);
         walls.sort();
         let wall = walls[RUNS / 2];
         match cpu {

@@ -274,26 +274,6 @@ pub struct BuildOutput {
     pub report: BuildReport,
 }
 
-/// CPU time of the calling thread in milliseconds (wall time where the platform has no
-/// per-thread clock).
-fn thread_cpu_ms() -> f64 {
-    #[cfg(unix)]
-    {
-        let mut ts = libc::timespec {
-            tv_sec: 0,
-            tv_nsec: 0,
-        };
-        // SAFETY: `ts` is a valid, writable timespec and CLOCK_THREAD_CPUTIME_ID is supported on
-        // every unix this builds for; the call only writes `ts`.
-        let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-        if rc == 0 {
-            return ts.tv_sec as f64 * 1e3 + ts.tv_nsec as f64 * 1e-6;
-        }
-    }
-    static START: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
-    START.get_or_init(Instant::now).elapsed().as_secs_f64() * 1e3
-}
-
 /// A local pool plus the phase clock.
 struct Timed {
     pool: rayon::ThreadPool,
@@ -322,7 +302,7 @@ impl Timed {
 
     /// CPU milliseconds of all pool threads so far.
     fn pool_cpu(&self) -> f64 {
-        self.pool.broadcast(|_| thread_cpu_ms()).iter().sum()
+        crate::cputime::pool_cpu_time(&self.pool).as_secs_f64() * 1e3
     }
 
     /// Run `f` in the pool as phase `p` (time adds up if a phase runs twice).

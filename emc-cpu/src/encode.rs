@@ -4,8 +4,6 @@
 //! measurement kernels shared by `emc layout` and the benches (encode-only loop, streaming
 //! baseline, thread CPU clock).
 
-use std::time::Duration;
-
 use emc_core::{Aabb, Encoder, Error, Expander};
 use rayon::prelude::*;
 
@@ -67,34 +65,4 @@ pub fn stream_baseline(boxes: &[Aabb], out: &mut [u64]) -> Result<(), Error> {
         *o = (hi as u64) << 32 | lo as u64;
     }
     Ok(())
-}
-
-/// CPU time consumed by the calling thread (`CLOCK_THREAD_CPUTIME_ID`): immune to other
-/// processes on a shared machine, unlike wall-clock time.
-pub fn thread_cpu_time() -> Duration {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; the clock id is a constant Linux supports.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    if rc != 0 {
-        return Duration::ZERO;
-    }
-    Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32)
-}
-
-/// Median of a non-empty list (the mean of the middle two for an even count); NaN when empty.
-pub fn median(v: &[f64]) -> f64 {
-    if v.is_empty() {
-        return f64::NAN;
-    }
-    let mut s = v.to_vec();
-    s.sort_by(f64::total_cmp);
-    let n = s.len();
-    if n % 2 == 1 {
-        s[n / 2]
-    } else {
-        0.5 * (s[n / 2 - 1] + s[n / 2])
-    }
 }

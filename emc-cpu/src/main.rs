@@ -3,7 +3,11 @@
 use clap::{Parser, Subcommand};
 
 #[derive(Parser, Debug)]
-#[command(name = "emc", version, about = "Extended Morton Codes: layouts, LBVH builds, reports")]
+#[command(
+    name = "emc",
+    version,
+    about = "Extended Morton Codes: layouts, LBVH builds, reports"
+)]
 struct Cli {
     #[command(subcommand)]
     verb: Verb,
@@ -27,8 +31,35 @@ enum Verb {
     Paper(emc_cpu::cli::paper::PaperArgs),
 }
 
+/// Parse the arguments; a usage mistake becomes one line naming the problem (exit 2), while
+/// `--help` and `--version` print as usual.
+fn parse_args() -> Cli {
+    match Cli::try_parse() {
+        Ok(cli) => cli,
+        Err(e) => {
+            use clap::error::ErrorKind;
+            if matches!(e.kind(), ErrorKind::DisplayHelp | ErrorKind::DisplayVersion) {
+                e.exit();
+            }
+            if e.kind() == ErrorKind::DisplayHelpOnMissingArgumentOrSubcommand {
+                let _ = e.print();
+                std::process::exit(2);
+            }
+            let text = e.to_string();
+            let line = text
+                .lines()
+                .map(str::trim)
+                .find(|l| !l.is_empty())
+                .unwrap_or("invalid arguments");
+            let line = line.strip_prefix("error: ").unwrap_or(line);
+            eprintln!("emc: {line} (see `emc --help`)");
+            std::process::exit(2);
+        }
+    }
+}
+
 fn main() {
-    let cli = Cli::parse();
+    let cli = parse_args();
     let result: anyhow::Result<()> = match cli.verb {
         Verb::Build(a) => emc_cpu::cli::build::run(&a),
         Verb::Layout(a) => emc_cpu::cli::layout::run(&a),

@@ -11,7 +11,8 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use emc_core::{Aabb, Backend, Encoder, Frame, LayoutSpec, Normalization, QuantizePath};
 
-use crate::encode::{encode_parallel, expand_slice, median, stream_baseline, thread_cpu_time};
+use crate::cputime::{median, thread_cpu_time};
+use crate::encode::{encode_parallel, expand_slice, stream_baseline};
 use crate::scene::{load_with, SceneOptions};
 
 /// Triangles of a built-in scene when `--prims` is not given.

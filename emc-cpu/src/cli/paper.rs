@@ -41,23 +41,6 @@ pub struct PaperArgs {
     pub repeat: Option<usize>,
 }
 
-/// CPU seconds of this process over all its threads, finished ones included (user + system,
-/// `getrusage`); `None` where unavailable.
-fn process_cpu_s() -> Option<f64> {
-    #[cfg(unix)]
-    {
-        // SAFETY: `rusage` is plain old data; an all-zero value is valid.
-        let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
-        // SAFETY: `ru` is a valid, writable rusage; RUSAGE_SELF is always supported.
-        let rc = unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut ru) };
-        if rc == 0 {
-            let tv = |t: libc::timeval| t.tv_sec as f64 + t.tv_usec as f64 * 1e-6;
-            return Some(tv(ru.ru_utime) + tv(ru.ru_stime));
-        }
-    }
-    None
-}
-
 /// Run `emc paper`.
 pub fn run(a: &PaperArgs) -> anyhow::Result<()> {
     let mut cfg = PaperConfig::new(a.quick);
@@ -78,11 +61,14 @@ pub fn run(a: &PaperArgs) -> anyhow::Result<()> {
     if let Some(r) = a.repeat {
         cfg.repeats = r;
     }
-    let cpu0 = process_cpu_s();
+    let cpu0 = crate::cputime::process_cpu_time().map(|d| d.as_secs_f64());
     let t0 = Instant::now();
     let res = run_paper(&cfg).context("emc paper")?;
     let wall = t0.elapsed().as_secs_f64();
-    let cpu = process_cpu_s().zip(cpu0).map(|(b, a)| b - a);
+    let cpu = crate::cputime::process_cpu_time()
+        .map(|d| d.as_secs_f64())
+        .zip(cpu0)
+        .map(|(b, a)| b - a);
     println!(
         "emc paper: {} scenes, {} threads, {} primary rays per configuration",
         res.scenes.len(),

@@ -63,21 +63,6 @@ pub struct RenderArgs {
     pub repeat: usize,
 }
 
-/// CPU time of the calling thread in seconds.
-fn thread_cpu_s() -> f64 {
-    let mut ts = libc::timespec {
-        tv_sec: 0,
-        tv_nsec: 0,
-    };
-    // SAFETY: `ts` is a valid, writable timespec; the call only writes it.
-    let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-    if rc == 0 {
-        ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9
-    } else {
-        f64::NAN
-    }
-}
-
 /// One timed phase: wall and pool CPU seconds.
 #[derive(Clone, Copy, Debug)]
 struct Timing {
@@ -86,7 +71,7 @@ struct Timing {
 }
 
 fn timed<R: Send>(pool: &rayon::ThreadPool, f: impl FnOnce() -> R + Send) -> (R, Timing) {
-    let cpu = || pool.broadcast(|_| thread_cpu_s()).iter().sum::<f64>();
+    let cpu = || crate::cputime::pool_cpu_time(pool).as_secs_f64();
     let c0 = cpu();
     let t0 = Instant::now();
     let r = pool.install(f);

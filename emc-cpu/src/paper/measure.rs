@@ -13,6 +13,7 @@ use crate::bvh::collapse::collapse_bvh;
 use crate::bvh::refit::CollapseParams;
 use crate::bvh::sweep::sweep_tree;
 use crate::bvh::{sah_cost, sah_headline, Bvh, SahConstants};
+use crate::cputime::median;
 use crate::scene::Scene;
 use crate::trace::workload::{all_ao_rays, trace_closest, trace_occluded, Camera, SceneFrame};
 use crate::trace::{Hit, NodeTest, Ray, TraceStats, WideBvh};
@@ -310,11 +311,6 @@ impl Workload {
     }
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    v[v.len() / 2]
-}
-
 /// Trace the workload on `bvh`: primary rays, then the AO rays of their hits, each timed
 /// `repeats` times (median), then once more with counters. Returns the figures, the wide BVH
 /// and the primary hits (for the image).
@@ -356,35 +352,17 @@ pub fn trace(
         ao_rays: ao.len() as u64,
         primary_hits: hits.iter().filter(|h| h.is_some()).count() as u64,
         ao_occluded: occ.iter().filter(|&&o| o).count() as u64,
-        primary_ms: median(tp),
-        ao_ms: median(ta),
-        primary_wall_ms: median(wp),
-        ao_wall_ms: median(wa),
+        primary_ms: median(&tp),
+        ao_ms: median(&ta),
+        primary_wall_ms: median(&wp),
+        ao_wall_ms: median(&wa),
         node_tests_per_ray: s.node_tests as f64 / rays,
         tri_tests_per_ray: s.tri_tests as f64 / rays,
     };
     Ok((t, wide, hits))
 }
 
-/// CPU milliseconds of the calling thread (wall time where there is no per-thread clock).
-fn thread_cpu_ms() -> f64 {
-    #[cfg(unix)]
-    {
-        let mut ts = libc::timespec {
-            tv_sec: 0,
-            tv_nsec: 0,
-        };
-        // SAFETY: `ts` is a valid, writable timespec; the call only writes it.
-        let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-        if rc == 0 {
-            return ts.tv_sec as f64 * 1e3 + ts.tv_nsec as f64 * 1e-6;
-        }
-    }
-    static START: std::sync::OnceLock<Instant> = std::sync::OnceLock::new();
-    START.get_or_init(Instant::now).elapsed().as_secs_f64() * 1e3
-}
-
 /// CPU milliseconds of all threads of `pool` so far.
 pub fn pool_cpu_ms(pool: &rayon::ThreadPool) -> f64 {
-    pool.broadcast(|_| thread_cpu_ms()).iter().sum()
+    crate::cputime::pool_cpu_time(pool).as_secs_f64() * 1e3
 }

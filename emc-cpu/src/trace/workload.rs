@@ -405,15 +405,3 @@ pub fn protocol_counts(bvh: &WideBvh, tris: &[[Vec3; 3]], mode: CameraMode, res:
         ao_occluded: occ.iter().filter(|&&o| o).count() as u64,
     }
 }
-
-/// CPU time of this process in seconds, summed over its live threads (Linux
-/// `/proc/self/task/*/schedstat`, nanosecond resolution); `None` elsewhere.
-pub fn process_cpu_seconds() -> Option<f64> {
-    let dir = std::fs::read_dir("/proc/self/task").ok()?;
-    let mut ns: u64 = 0;
-    for e in dir.flatten() {
-        let s = std::fs::read_to_string(e.path().join("schedstat")).ok()?;
-        ns += s.split_whitespace().next()?.parse::<u64>().ok()?;
-    }
-    Some(ns as f64 * 1e-9)
-}
