@@ -1,5 +1,6 @@
 //! The primitive box that every encoder consumes: six `f32`, 24 bytes, `#[repr(C)]` so that
 //! SIMD paths and the hardware model can stream it as raw words.
+#![forbid(unsafe_code)]
 
 use glam::Vec3;
 

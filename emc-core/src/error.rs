@@ -1,5 +1,6 @@
 //! Errors of emc-core: small `Copy` values, one documented variant per way user data can be wrong.
 //! Nothing in emc-core panics on user data; every fallible constructor returns [`Error`].
+#![forbid(unsafe_code)]
 
 use core::fmt;
 

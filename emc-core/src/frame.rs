@@ -1,6 +1,7 @@
 //! The scene frame: the boxes that codes are normalised to, computed once per scene.
 //! Positions are normalised per axis to the centroid box (by default); sizes to the diagonal `D`
 //! of the union of primitive boxes. Non-finite input is refused here, once, with the index.
+#![forbid(unsafe_code)]
 
 use crate::aabb::Aabb;
 use crate::error::Error;

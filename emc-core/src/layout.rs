@@ -20,6 +20,7 @@
 //! | duplicate codes in LBVH | equal codes are extended by their sorted position (emc-cpu) |
 //! | zero-extent axis | gets no bits in the adaptive layouts; its value is 0 when a fixed layout gives it bits |
 //! | all extents zero | the halving rule falls back to round-robin x, y, z |
+#![forbid(unsafe_code)]
 
 use core::fmt;
 use core::str::FromStr;

@@ -27,6 +27,7 @@
 //! thresholds `T_k = min{ d2 : f(d2) ≥ k }` that `d2` reaches; the thresholds are found by
 //! bisection on the formula itself, so the two forms agree by construction (and a hardware unit
 //! needs no square root, only `S` comparisons).
+#![forbid(unsafe_code)]
 
 use crate::aabb::Aabb;
 use crate::frame::Frame;

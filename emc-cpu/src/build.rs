@@ -2,6 +2,7 @@
 //! (Karras or Apetrei) → bounds → SAH collapse, optionally with treelet restructuring (`atrbvh`),
 //! or the binned-SAH reference, on a local rayon pool, timing every phase in wall and thread-CPU
 //! milliseconds.
+#![forbid(unsafe_code)]
 
 use std::fmt;
 use std::str::FromStr;

@@ -3,6 +3,7 @@
 //! the result is bit-identical to one thread (and to `Encoder::encode` on each box). Also the
 //! measurement kernels shared by `emc layout` and the benches (encode-only loop, streaming
 //! baseline, thread CPU clock).
+#![forbid(unsafe_code)]
 
 use emc_core::{Aabb, Encoder, Error, Expander};
 use rayon::prelude::*;

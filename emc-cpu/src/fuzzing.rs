@@ -1,6 +1,7 @@
 //! Property checks over arbitrary bytes, shared by the `cargo fuzz` targets (in `fuzz/`) and
 //! the test that replays their corpora: each function decodes its input, runs one stage of the
 //! pipeline and panics when a promised property fails. Bad input must give an error, not a panic.
+#![forbid(unsafe_code)]
 
 use std::path::Path;
 

@@ -1,4 +1,5 @@
 //! The `emc` command-line tool: parses arguments and hands each verb to `emc_cpu::cli`.
+#![forbid(unsafe_code)]
 
 use clap::{Parser, Subcommand};
 

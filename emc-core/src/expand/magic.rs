@@ -1,6 +1,7 @@
 //! Shift-and-mask ("magic bits") expansion for regular patterns: a repeated permutation of `k`
 //! distinct channels (`k` = 1..=4) with the same bit count each, such as `morton30`,
 //! `morton63` (`(xyz)^21`) and `emc64-sort` (`(a0 a1 a2 s)^16`). No tables, no branches.
+#![forbid(unsafe_code)]
 
 use crate::layout::Layout;
 

@@ -1,5 +1,6 @@
 //! The bit-loop reference: one position at a time, MSB first, exactly as the layout reads.
 //! It is the oracle every other backend is tested against; it is not meant to be fast.
+#![forbid(unsafe_code)]
 
 use crate::layout::Layout;
 

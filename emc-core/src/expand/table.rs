@@ -12,6 +12,7 @@
 //! The decoder uses one table per code byte: a code byte holds consecutive bits of each channel,
 //! so `D[j][b]` packs the four channel fragments (one byte each) and a per-(byte, channel)
 //! shift puts each fragment back in place (8 KiB).
+#![forbid(unsafe_code)]
 
 use crate::layout::{Channel, Layout};
 

@@ -1,6 +1,7 @@
 //! Apetrei 2014: the same binary radix tree as Karras, built bottom-up in one pass that also
 //! finishes bounds, counts and the collapse decision (builder `lbvh-apetrei`). Internal node `k`
 //! is the split between sorted positions `k` and `k + 1`; the root is whichever split is last.
+#![forbid(unsafe_code)]
 
 use std::sync::atomic::{AtomicU32, Ordering};
 

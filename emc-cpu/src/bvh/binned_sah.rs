@@ -9,6 +9,7 @@
 //! bounded even for a million identical primitives. Large nodes bin and partition in parallel
 //! over fixed-size chunks; subtrees run in parallel through `rayon::join` down to a bounded
 //! join depth and finish on an explicit work stack, so no input can exhaust the call stack.
+#![forbid(unsafe_code)]
 
 use emc_core::Aabb;
 use glam::{Vec3A, Vec4};

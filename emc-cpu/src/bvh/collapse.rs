@@ -1,6 +1,7 @@
 //! Optimal bottom-up SAH leaf collapse, emitted as a compact BVH in depth-first order (left child
 //! right after its parent): step 6 of the LBVH pipeline. The decisions come from the bottom-up
 //! pass (`refit`/`apetrei`); this file writes the nodes, in parallel over disjoint subtrees.
+#![forbid(unsafe_code)]
 
 use emc_core::Aabb;
 use rayon::prelude::*;

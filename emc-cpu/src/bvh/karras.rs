@@ -1,6 +1,7 @@
 //! Karras 2012: the binary radix tree over sorted codes, one independent task per internal node
 //! (step 4 of the LBVH pipeline, builder `lbvh`). Equal codes are extended by their sorted
 //! position, so every input gives one well-defined tree. Bounds come after, from `refit`.
+#![forbid(unsafe_code)]
 
 use std::sync::atomic::Ordering;
 

@@ -1,5 +1,6 @@
 //! The flat BVH2 node layout every builder writes and every consumer reads: 32 bytes,
 //! `#[repr(C)]`, two constructors, named accessors (no bit fiddling outside this file).
+#![forbid(unsafe_code)]
 
 use emc_core::Aabb;
 

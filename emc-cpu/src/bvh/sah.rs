@@ -1,5 +1,6 @@
 //! Surface-area-heuristic cost of a finished BVH, in `f64`: the quality figure every builder and
 //! table of the project reports. Iterative traversal only (trees can be very deep).
+#![forbid(unsafe_code)]
 
 use super::node::Bvh;
 use emc_core::Aabb;

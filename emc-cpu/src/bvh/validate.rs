@@ -1,6 +1,7 @@
 //! Structural check of any [`Bvh`] against the primitive boxes it was built from: every
 //! primitive exactly once, exact `f32` containment, reachability, node count and depth.
 //! Iterative, never panics: a malformed tree yields a [`ValidateError`] naming the node.
+#![forbid(unsafe_code)]
 
 use super::node::Bvh;
 use emc_core::Aabb;

@@ -1,5 +1,6 @@
 //! `emc build`: load a scene, run the build pipeline on a local pool and print per-phase wall and
 //! thread-CPU milliseconds, throughput, tree shape and both SAH figures.
+#![forbid(unsafe_code)]
 
 use anyhow::{bail, Context};
 use emc_core::LayoutSpec;

@@ -1,6 +1,7 @@
 //! `emc hwsim`: configure the modelled EMC unit for a scene, check every code against
 //! emc-core, simulate it against a memory system (fast mode, optionally also cycle-stepped),
 //! and print the "is it easy?" table: area, latency and energy over Morton, codes per cycle.
+#![forbid(unsafe_code)]
 
 use std::time::Instant;
 

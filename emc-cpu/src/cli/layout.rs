@@ -4,6 +4,7 @@
 //!
 //! `--ratios` turns it into the ratio measurement tool: only the baseline and the dispatched
 //! pipelines, at least 9 interleaved rounds, the median of the per-round ratios.
+#![forbid(unsafe_code)]
 
 use std::fmt::Write as _;
 use std::time::Instant;

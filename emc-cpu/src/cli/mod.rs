@@ -1,4 +1,5 @@
 //! The verbs of the `emc` binary, one module each; `main.rs` only parses and dispatches.
+#![forbid(unsafe_code)]
 
 pub mod build;
 pub mod hwsim;

@@ -1,6 +1,7 @@
 //! `emc paper`: the project's main report. Runs every builder × layout on the given scenes (the
 //! built-in ones by default), writes Markdown, CSV, SVG plots and PNG images to a folder, and
 //! prints a summary with the thread-CPU time the run took.
+#![forbid(unsafe_code)]
 
 use std::path::PathBuf;
 use std::time::Instant;

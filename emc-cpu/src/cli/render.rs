@@ -1,6 +1,7 @@
 //! `emc render`: build a BVH over a scene, collapse it to the tracer's wide BVH, trace the
 //! benchmark protocol (primary, AO and diffuse bounce rays) on a local pool, print throughput
 //! and work per ray, and write a shaded PNG.
+#![forbid(unsafe_code)]
 
 use std::time::Instant;
 

@@ -1,6 +1,7 @@
 //! The CSV files of `emc paper`: one row per measured configuration (`runs.csv`, columns named
 //! with the shared builder and layout names) and the seed-table figures per scene
 //! (`seed-tables.csv`).
+#![forbid(unsafe_code)]
 
 use std::fmt::Write as _;
 

@@ -1,6 +1,7 @@
 //! One measured configuration of `emc paper`: a builder (`lbvh`, `atrbvh`, `binned-sah`) over
 //! one layout variant (a [`LayoutSpec`], optionally with cube normalisation), timed, costed by
 //! SAH and traced with the benchmark protocol's primary and AO rays.
+#![forbid(unsafe_code)]
 
 use std::time::Instant;
 

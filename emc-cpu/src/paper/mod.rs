@@ -1,6 +1,7 @@
 //! `emc paper`, the project's main report: the seed's two LBVH/ATRBVH tables reproduced, what
 //! code accuracy costs in build and trace time (with its Pareto front), the seed's example
 //! layout table, all written as Markdown, CSV, SVG plots and one PNG image per scene.
+#![forbid(unsafe_code)]
 
 pub mod csv;
 pub mod measure;

@@ -1,5 +1,6 @@
 //! The Pareto front of `emc paper`'s accuracy-versus-time table: among configurations of one
 //! scene, those no other configuration beats on both of two costs (lower is better on both).
+#![forbid(unsafe_code)]
 
 /// Flags, one per point, true where no other point is at most as costly on both axes and
 /// strictly cheaper on one. Equal points are all on the front; a point with a NaN coordinate

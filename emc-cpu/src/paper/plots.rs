@@ -1,6 +1,7 @@
 //! SVG plots of `emc paper` (plotters, SVG backend, text as SVG `<text>` so no font files are
 //! needed): per scene, build time against SAH and against time-to-image, one colour per
 //! builder, Pareto-front points ringed and joined.
+#![forbid(unsafe_code)]
 
 use std::path::Path;
 

@@ -1,6 +1,7 @@
 //! The Markdown report of `emc paper`: the seed's two result tables reproduced on our scenes
 //! (with the seed's own figures beside them), the accuracy-versus-time table with its Pareto
 //! front, the example-codes table and the per-scene comparison with the seed's LBVH "var" row.
+#![forbid(unsafe_code)]
 
 use std::fmt::Write as _;
 

@@ -1,6 +1,7 @@
 //! Built-in procedural scenes (`builtin:NAME`): deterministic from a seed, sized by `prims`.
 //! They stand for the layouts that stress LBVH builders (uniform soup, a stadium, a flat city,
 //! hair, mixed primitive sizes) plus a watertight icosphere for tracer tests.
+#![forbid(unsafe_code)]
 
 use std::collections::HashMap;
 use std::path::PathBuf;

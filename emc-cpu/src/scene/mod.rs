@@ -1,6 +1,7 @@
 //! Scenes: the triangle soups that every builder, encoder and tracer of emc-cpu consumes.
 //! A [`Scene`] comes from an OBJ file ([`obj`]), a zstd-compressed OBJ, a shared scene named by
 //! its stem, or a deterministic procedural generator ([`builtin`]); [`load`] picks by the spec.
+#![forbid(unsafe_code)]
 
 pub mod builtin;
 pub mod obj;

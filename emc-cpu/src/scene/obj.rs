@@ -1,6 +1,7 @@
 //! The OBJ front end of [`crate::scene`]: `.obj` and zstd-compressed `.obj.zst` files, parsed by
 //! `tobj` (positions only, triangulated), after a light line check of our own that names the
 //! file and line of the first malformed `v`/`vt`/`vn`/`f`/`l` line (`tobj` reports no lines).
+#![forbid(unsafe_code)]
 
 use std::io::{BufReader, Read};
 use std::path::{Path, PathBuf};

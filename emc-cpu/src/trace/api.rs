@@ -26,6 +26,7 @@
 //! assert!(hits[0].is_some() && hits[1].is_none());
 //! # Ok::<(), emc_cpu::trace::TraceError>(())
 //! ```
+#![forbid(unsafe_code)]
 
 use std::sync::Arc;
 

@@ -1,6 +1,7 @@
 //! Shaded images of the tracer: per-pixel normal or ambient-occlusion shading of the protocol
 //! camera's primary rays, as 8-bit RGB, with PNG encoding and decoding for `emc render` and
 //! the reference-image test.
+#![forbid(unsafe_code)]
 
 use std::io::{BufWriter, Read, Write};
 

@@ -1,6 +1,7 @@
 //! Robust ray geometry of the tracer: the ray with its precomputed constants, the watertight
 //! ray–triangle test of Woop, Benthin and Wald (2013) and the conservative slab test of Ize
 //! (2013). Every traversal path (scalar or SIMD) calls these or agrees with them bit for bit.
+#![forbid(unsafe_code)]
 
 use glam::Vec3;
 

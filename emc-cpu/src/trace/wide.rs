@@ -1,6 +1,7 @@
 //! The tracer's acceleration structure: any validated BVH2 collapsed into a 4-wide BVH (one SSE
 //! register per plane) and an 8-wide BVH (one AVX2 register per plane), child boxes SoA, nodes
 //! and triangles in depth-first order, with the depth bound that sizes every stack checked here.
+#![forbid(unsafe_code)]
 
 use emc_core::Aabb;
 use glam::Vec3;

@@ -1,6 +1,7 @@
 //! The benchmark workloads of the tracer, exactly as the shared benchmark protocol defines
 //! them: the camera ("outside" or "center"), primary rays in 8×8 tiles, ambient-occlusion rays
 //! from `pcg_hash`, plus diffuse bounce rays; traced in parallel over tiles, deterministic.
+#![forbid(unsafe_code)]
 
 use glam::Vec3;
 use rayon::prelude::*;
