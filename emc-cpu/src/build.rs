@@ -340,7 +340,7 @@ pub fn encoder_for(aabbs: &[Aabb], layout: &LayoutSpec) -> Result<Encoder, Build
 
 /// Codes of the boxes in parallel (64-bit words for every layout).
 pub fn encode_codes(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u64>, BuildError> {
-    let mut codes = crate::hugepage::filled(aabbs.len(), 0u64);
+    let mut codes = crate::buffers::filled(aabbs.len(), 0u64);
     crate::encode::encode_parallel(enc, aabbs, &mut codes)?;
     Ok(codes)
 }
@@ -349,7 +349,7 @@ pub fn encode_codes(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u64>, BuildErro
 pub fn sort_codes<K: RadixKey>(
     mut keys: Vec<K>,
 ) -> Result<(Vec<K>, Vec<u32>, SortReport), BuildError> {
-    let mut ids: Vec<u32> = crate::hugepage::from_fn(keys.len(), |i| i as u32);
+    let mut ids: Vec<u32> = crate::buffers::from_fn(keys.len(), |i| i as u32);
     let r = sort_pairs(&mut keys, &mut ids)?;
     Ok((keys, ids, r))
 }
@@ -422,7 +422,7 @@ pub fn build_scene_in(
     }
     let mut out = std::mem::take(&mut arena.aabbs);
     let aabbs = timed.run(Phase::Aabb, || {
-        crate::hugepage::refill(&mut out, n, Aabb::EMPTY);
+        crate::buffers::refill(&mut out, n, Aabb::EMPTY);
         crate::aabbs::triangle_aabbs(&scene.vertices, &scene.indices, &mut out);
         out
     });
@@ -483,7 +483,7 @@ fn build_timed(
     let (bvh, sort, headline) = if enc.layout().fits_u32() {
         let mut codes = std::mem::take(&mut arena.codes32);
         timed.run(Phase::Encode, || {
-            crate::hugepage::refill(&mut codes, n, 0);
+            crate::buffers::refill(&mut codes, n, 0);
             crate::encode::encode_parallel_u32(&enc, ab, &mut codes)
         })?;
         let mut kbuf = std::mem::take(&mut arena.kbuf32);
@@ -493,7 +493,7 @@ fn build_timed(
     } else {
         let mut codes = std::mem::take(&mut arena.codes64);
         timed.run(Phase::Encode, || {
-            crate::hugepage::refill(&mut codes, n, 0);
+            crate::buffers::refill(&mut codes, n, 0);
             crate::encode::encode_parallel(&enc, ab, &mut codes)
         })?;
         let mut kbuf = std::mem::take(&mut arena.kbuf64);

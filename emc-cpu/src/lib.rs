@@ -4,13 +4,13 @@
 //! emc-core, radix sorting, LBVH builders, SAH metrics and the verbs of the `emc` binary.
 
 pub mod aabbs;
+pub mod buffers;
 pub mod build;
 pub mod bvh;
 pub mod cli;
 pub mod cputime;
 pub mod encode;
 pub mod fuzzing;
-pub mod hugepage;
 pub mod paper;
 pub mod scene;
 pub mod sort;

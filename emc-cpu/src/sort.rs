@@ -175,8 +175,8 @@ pub fn sort_pairs_with<K: RadixKey>(
 
     let kbuf: &mut Vec<K> = kscratch;
     let vbuf: &mut Vec<u32> = vscratch;
-    crate::hugepage::refill(kbuf, n, K::default());
-    crate::hugepage::refill(vbuf, n, 0);
+    crate::buffers::refill(kbuf, n, K::default());
+    crate::buffers::refill(vbuf, n, 0);
     let mut first_done = false;
     for pass in 0..K::BYTES {
         if totals[pass].contains(&n) {

@@ -87,7 +87,7 @@ fn emit_subtree(tree: &RadixTree, sorted: &[Aabb], t: Task, dst: &mut [Node]) ->
 /// subtree covers a contiguous run of sorted positions). Returns the BVH and its depth.
 pub fn emit(tree: &RadixTree, sorted: &[Aabb], order: Vec<u32>) -> (Bvh, usize) {
     let total = out_of(tree, tree.root) as usize;
-    let mut nodes = crate::hugepage::from_fn(total, |_| Node::default());
+    let mut nodes = crate::buffers::from_fn(total, |_| Node::default());
     let cutoff = (total / (rayon::current_num_threads() * 8)).max(MIN_TASK_NODES) as u32;
     // Top of the tree, sequentially, down to subtrees of at most `cutoff` nodes.
     let mut tasks = Vec::new();

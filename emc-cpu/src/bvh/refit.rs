@@ -164,7 +164,7 @@ pub struct RadixTree {
 /// The primitive boxes in sorted order (`sorted[p] = aabbs[order[p]]`), gathered in parallel
 /// once so that the tree passes read leaves sequentially instead of chasing `order`.
 pub fn gather_sorted(aabbs: &[Aabb], order: &[u32]) -> Vec<Aabb> {
-    crate::hugepage::collect(
+    crate::buffers::collect(
         order
             .par_iter()
             .with_min_len(1 << 14)

@@ -321,7 +321,7 @@ pub fn sweep_tree_in<K: RadixKey>(
     let threads = rayon::current_num_threads();
     // Every split's area is written (by its task or as a top node) before it is read.
     let mut areas = std::mem::take(&mut scratch.areas);
-    crate::hugepage::refill(&mut areas, n - 1, 0.0);
+    crate::buffers::refill(&mut areas, n - 1, 0.0);
     let target = (n / (threads * 8)).max(MIN_TASK);
 
     // Top of the tree, down to leaf ranges of at most `target` (none when one task does).

@@ -186,7 +186,7 @@ fn build_cube(
     let t0 = Instant::now();
     let r = pool.install(
         || -> Result<(Bvh, Option<Bvh>, String, Option<_>), MeasureError> {
-            let mut aabbs = crate::hugepage::filled(scene.indices.len(), Aabb::EMPTY);
+            let mut aabbs = crate::buffers::filled(scene.indices.len(), Aabb::EMPTY);
             crate::aabbs::triangle_aabbs(&scene.vertices, &scene.indices, &mut aabbs);
             let frame = Frame::from_bounds(scene_bounds(&aabbs)?, Normalization::Cube)?;
             let enc = emc_core::Encoder::new(&spec, &frame);

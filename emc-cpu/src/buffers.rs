@@ -1,0 +1,38 @@
+//! Large build buffers: the pipeline allocates ~100 bytes per primitive, and the page faults of
+//! fresh memory cost about a phase, so big buffers are reused when they are large enough and
+//! filled in parallel (first touch on every core) when they are not. (Transparent huge pages
+//! were tried and dropped: no gain, and erratic builds on a busy machine.)
+#![forbid(unsafe_code)]
+
+use rayon::prelude::*;
+
+/// A vector of `n` copies of `x` (`vec![x; n]`: zeroed allocator pages, no writing pass, when
+/// `x` is a zero integer).
+pub fn filled<T: Copy + Send + Sync>(n: usize, x: T) -> Vec<T> {
+    vec![x; n]
+}
+
+/// Make `v` hold `n` copies of `x`, reusing its allocation when it is large enough (its pages
+/// are then already mapped: a memset instead of page faults); else as [`filled`].
+pub fn refill<T: Copy + Send + Sync>(v: &mut Vec<T>, n: usize, x: T) {
+    if v.capacity() >= n {
+        v.clear();
+        v.resize(n, x);
+    } else {
+        *v = filled(n, x);
+    }
+}
+
+/// A vector of `n` values made by `f`, filled in parallel.
+pub fn from_fn<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
+    let mut v: Vec<T> = Vec::with_capacity(n);
+    v.par_extend((0..n).into_par_iter().with_min_len(1 << 14).map(f));
+    v
+}
+
+/// Collect an indexed parallel iterator into a vector allocated once.
+pub fn collect<T: Send>(it: impl IndexedParallelIterator<Item = T>) -> Vec<T> {
+    let mut v: Vec<T> = Vec::with_capacity(it.len());
+    v.par_extend(it);
+    v
+}
