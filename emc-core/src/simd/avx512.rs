@@ -135,6 +135,10 @@ pub(super) unsafe fn run_pdep<const W32: bool>(
     out: *mut u8,
 ) -> usize {
     let c = Consts::new(k);
+    // The size channel (at most `LOOKUP_BITS` bits here) is deposited by a table load instead
+    // of a fourth `pdep`: `st[v] = pdep(v, m[3])` for every 6-bit `v`, built once per batch.
+    // Loads run on the address units while the `pdep`s compete for the integer ALUs.
+    let st: [u64; 64] = core::array::from_fn(|v| _pdep_u64(v as u64, m[3]));
     // Software-pipelined: step g quantises its pair into `next` while the pdeps of the
     // previous pair (in `q`) run, so the two dependency chains overlap.
     let mut q = [[0u32; 8]; 4];
@@ -150,6 +154,9 @@ pub(super) unsafe fn run_pdep<const W32: bool>(
             let ((qa, da), (qb, db)) =
                 unsafe { (positions4(k, pa, true), positions4(k, pb, true)) };
             let s = size8(&c, _mm512_insertf64x4::<1>(_mm512_castpd256_pd512(da), db));
+            // Already in `0 ..= 2^S − 1` (see `size8`); the mask makes the table index
+            // obviously in bounds for the unchecked read below.
+            let s = _mm256_and_si256(s, _mm256_set1_epi32(63));
             for ch in 0..3 {
                 let row = next[ch].as_mut_ptr() as *mut __m128i;
                 // SAFETY: each row holds eight u32: two stores of four.
@@ -171,7 +178,8 @@ pub(super) unsafe fn run_pdep<const W32: bool>(
                 let code = _pdep_u64(q[0][l] as u64, m[0])
                     | _pdep_u64(q[1][l] as u64, m[1])
                     | _pdep_u64(q[2][l] as u64, m[2])
-                    | _pdep_u64(q[3][l] as u64, m[3]);
+                    // SAFETY: `q[3][l] < 64` (masked above) and `st` has 64 entries.
+                    | unsafe { *st.get_unchecked(q[3][l] as usize) };
                 let i = first + l;
                 // SAFETY: `i < 4·n4` by the contract above.
                 unsafe {
