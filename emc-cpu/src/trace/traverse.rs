@@ -731,21 +731,8 @@ fn occluded_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     stack.push((0, r.tnear));
     while let Some((code, _)) = stack.pop() {
         if code & LEAF != 0 {
-            let mut pi = (code & !LEAF) as usize;
-            loop {
-                let p = &bvh.packets[pi];
-                if STATS {
-                    stats.tri_tests += p.count as u64;
-                }
-                let mut hit = false;
-                lanes.packet(r, p, r.tfar, |_, _, _, _| hit = true);
-                if hit {
-                    return true;
-                }
-                if p.last != 0 {
-                    break;
-                }
-                pi += 1;
+            if leaf_occludes::<STATS, W, L>(bvh, code, r, lanes, stats) {
+                return true;
             }
         } else {
             let node = &nodes[code as usize];
@@ -753,14 +740,49 @@ fn occluded_in<const W: usize, const STATS: bool, L: Lanes<W>>(
                 stats.node_tests += 1;
             }
             let (mut m, _) = lanes.test(node, r, cull);
-            // Any hit ends the search, so the order of visits only matters for speed; the
-            // lanes go on the stack as they come.
+            // Any hit ends the search, so the order of visits only matters for speed: entered
+            // leaves are tested at once (no round trip through the stack), inner children go
+            // on the stack as they come.
             while m != 0 {
                 let lane = m.trailing_zeros() as usize;
                 m &= m - 1;
-                stack.push((node.child[lane], 0.0));
+                let child = node.child[lane];
+                if child & LEAF != 0 {
+                    if leaf_occludes::<STATS, W, L>(bvh, child, r, lanes, stats) {
+                        return true;
+                    }
+                } else {
+                    stack.push((child, 0.0));
+                }
             }
         }
     }
     false
+}
+
+/// True when a triangle of leaf `code` is hit in `[tnear, tfar]`.
+#[inline(always)]
+fn leaf_occludes<const STATS: bool, const W: usize, L: Lanes<W>>(
+    bvh: &WideBvh,
+    code: u32,
+    r: &PreRay,
+    lanes: &L,
+    stats: &mut TraceStats,
+) -> bool {
+    let mut pi = (code & !LEAF) as usize;
+    loop {
+        let p = &bvh.packets[pi];
+        if STATS {
+            stats.tri_tests += p.count as u64;
+        }
+        let mut hit = false;
+        lanes.packet(r, p, r.tfar, |_, _, _, _| hit = true);
+        if hit {
+            return true;
+        }
+        if p.last != 0 {
+            return false;
+        }
+        pi += 1;
+    }
 }
