@@ -637,7 +637,7 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
         if d > cull {
             continue;
         }
-        if code & LEAF != 0 {
+        let leaf = |code: u32, best: &mut Hit, found: &mut bool, stats: &mut TraceStats| {
             let mut pi = (code & !LEAF) as usize;
             loop {
                 let p = &bvh.packets[pi];
@@ -645,24 +645,48 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
                     stats.tri_tests += p.count as u64;
                 }
                 lanes.packet(r, p, best.t, |t, u, v, prim| {
-                    if !found || better(t, prim, best.t, best.prim) {
-                        best = Hit { t, prim, u, v };
-                        found = true;
+                    if !*found || better(t, prim, best.t, best.prim) {
+                        *best = Hit { t, prim, u, v };
+                        *found = true;
                     }
                 });
-                cull = slack(best.t, abs);
                 if p.last != 0 {
                     break;
                 }
                 pi += 1;
             }
+            slack(best.t, abs)
+        };
+        if code & LEAF != 0 {
+            cull = leaf(code, &mut best, &mut found, stats);
         } else {
             let node = &nodes[code as usize];
             if STATS {
                 stats.node_tests += 1;
             }
-            let hits = lanes.test(node, r, cull);
-            next = push_ordered(&mut stack, node, hits);
+            let (mask, dist) = lanes.test(node, r, cull);
+            // Entered leaves are tested at once; inner children still entered within the
+            // (possibly shortened) cull distance are visited nearest first.
+            let mut m = mask;
+            let mut inner = mask;
+            while m != 0 {
+                let lane = m.trailing_zeros() as usize;
+                m &= m - 1;
+                let child = node.child[lane];
+                if child & LEAF != 0 {
+                    inner &= !(1 << lane);
+                    cull = leaf(child, &mut best, &mut found, stats);
+                }
+            }
+            let mut m = inner;
+            while m != 0 {
+                let lane = m.trailing_zeros() as usize;
+                m &= m - 1;
+                if dist[lane] > cull {
+                    inner &= !(1 << lane);
+                }
+            }
+            next = push_ordered(&mut stack, node, (inner, dist));
         }
     }
     found.then_some(best)
