@@ -285,6 +285,13 @@ impl RadixTree {
 /// becomes one leaf when `ci·A·N < ct·A + cost(l) + cost(r)` and `N ≤ max_leaf`.
 #[inline]
 pub(crate) fn combine(a: &SlotData, b: &SlotData, k: &CollapseParams) -> SlotData {
+    combine_with_area(a, b, k).0
+}
+
+/// [`combine`], also returning the parent's surface area (the one-pass sweep sums it for the
+/// headline SAH).
+#[inline(always)]
+pub(crate) fn combine_with_area(a: &SlotData, b: &SlotData, k: &CollapseParams) -> (SlotData, f64) {
     let bounds = a.bounds.union(&b.bounds);
     let ar = area(&bounds);
     let count = a.count + b.count;
@@ -295,13 +302,14 @@ pub(crate) fn combine(a: &SlotData, b: &SlotData, k: &CollapseParams) -> SlotDat
     } else {
         (split, 1 + a.out + b.out)
     };
-    SlotData {
+    let d = SlotData {
         bounds,
         cost,
         first: a.first.min(b.first),
         count,
         out,
-    }
+    };
+    (d, ar)
 }
 
 /// Parallel bottom-up pass over a tree with parent links (Karras): one walk per leaf, stopping

@@ -60,28 +60,10 @@ struct Open {
     left: Closed,
 }
 
-/// Parent data of two finished children and the parent's area (the arithmetic of
-/// `refit::combine`, with the area kept for the headline sum).
+/// Parent data of two finished children and the parent's area.
 #[inline(always)]
 fn join(a: &SlotData, b: &SlotData, k: &CollapseParams) -> (SlotData, f64) {
-    let bounds = a.bounds.union(&b.bounds);
-    let ar = area(&bounds);
-    let count = a.count + b.count;
-    let split = k.ct * ar + a.cost + b.cost;
-    let as_leaf = k.ci * ar * count as f64;
-    let (cost, out) = if count <= k.max_leaf && as_leaf < split {
-        (as_leaf, 1)
-    } else {
-        (split, 1 + a.out + b.out)
-    };
-    let d = SlotData {
-        bounds,
-        cost,
-        first: a.first.min(b.first),
-        count,
-        out,
-    };
-    (d, ar)
+    super::refit::combine_with_area(a, b, k)
 }
 
 /// Hint the cache to fetch `x` (no effect on results).

@@ -297,23 +297,13 @@ pub fn trace_closest(
     kind: NodeTest,
     count: bool,
 ) -> (Vec<Option<Hit>>, TraceStats) {
-    let mut out = vec![None; rays.len()];
-    let stats = out
-        .par_chunks_mut(64)
-        .zip(rays.par_chunks(64))
-        .map(|(o, r)| {
-            let mut s = TraceStats::default();
-            for (h, ray) in o.iter_mut().zip(r) {
-                *h = if count {
-                    closest::<true>(bvh, ray, kind, &mut s)
-                } else {
-                    closest::<false>(bvh, ray, kind, &mut s)
-                };
-            }
-            s
-        })
-        .reduce(TraceStats::default, |a, b| a.add(&b));
-    (out, stats)
+    trace_par(rays, None, |ray, s| {
+        if count {
+            closest::<true>(bvh, ray, kind, s)
+        } else {
+            closest::<false>(bvh, ray, kind, s)
+        }
+    })
 }
 
 /// Occlusion of `rays`, in parallel over 64-ray chunks, with counters.
@@ -323,18 +313,29 @@ pub fn trace_occluded(
     kind: NodeTest,
     count: bool,
 ) -> (Vec<bool>, TraceStats) {
-    let mut out = vec![false; rays.len()];
+    trace_par(rays, false, |ray, s| {
+        if count {
+            occluded::<true>(bvh, ray, kind, s)
+        } else {
+            occluded::<false>(bvh, ray, kind, s)
+        }
+    })
+}
+
+/// Trace `rays` in parallel over 64-ray chunks with `one`, summing the counters.
+fn trace_par<T: Clone + Send + Sync>(
+    rays: &[Ray],
+    empty: T,
+    one: impl Fn(&Ray, &mut TraceStats) -> T + Sync,
+) -> (Vec<T>, TraceStats) {
+    let mut out = vec![empty; rays.len()];
     let stats = out
         .par_chunks_mut(64)
         .zip(rays.par_chunks(64))
         .map(|(o, r)| {
             let mut s = TraceStats::default();
             for (h, ray) in o.iter_mut().zip(r) {
-                *h = if count {
-                    occluded::<true>(bvh, ray, kind, &mut s)
-                } else {
-                    occluded::<false>(bvh, ray, kind, &mut s)
-                };
+                *h = one(ray, &mut s);
             }
             s
         })
