@@ -15,14 +15,7 @@ use emc_cpu::cputime::thread_cpu_time;
 
 /// The scene's name, its boxes and its morton63 LBVH with one primitive per leaf.
 fn input() -> (String, Vec<Aabb>, Bvh) {
-    let spec = if emc_cpu::scene::shared_scene_path("pbrt-bathroom").is_some() {
-        "pbrt-bathroom"
-    } else {
-        eprintln!("pbrt-bathroom not found; benchmarking builtin:mixed instead");
-        "builtin:mixed"
-    };
-    let scene = emc_cpu::scene::load(spec).expect("benchmark scene loads");
-    let aabbs = scene.aabbs();
+    let (spec, aabbs) = emc_benches::bathroom_or_mixed();
     let opts = BuildOptions {
         layout: LayoutSpec::Morton63,
         builder: Builder::Lbvh,
@@ -30,7 +23,7 @@ fn input() -> (String, Vec<Aabb>, Bvh) {
         collapse: CollapseParams::NONE,
     };
     let bvh = build_aabbs(aabbs.clone(), &opts).expect("LBVH builds").bvh;
-    (spec.to_string(), aabbs, bvh)
+    (spec, aabbs, bvh)
 }
 
 fn pool(threads: usize) -> rayon::ThreadPool {

@@ -11,14 +11,7 @@ use emc_cpu::build::{
 };
 
 fn input() -> (String, Vec<Aabb>) {
-    let spec = if emc_cpu::scene::shared_scene_path("pbrt-bathroom").is_some() {
-        "pbrt-bathroom"
-    } else {
-        eprintln!("pbrt-bathroom not found; benchmarking builtin:mixed instead");
-        "builtin:mixed"
-    };
-    let scene = emc_cpu::scene::load(spec).expect("benchmark scene loads");
-    (spec.to_string(), scene.aabbs())
+    emc_benches::bathroom_or_mixed()
 }
 
 fn opts(builder: Builder, threads: usize) -> BuildOptions {

@@ -23,3 +23,16 @@ pub fn uniform_boxes(n: usize) -> Vec<Aabb> {
         .expect("the built-in uniform scene generates")
         .aabbs()
 }
+
+/// The scene the builder benches run on and its boxes: `pbrt-bathroom` when the shared scenes
+/// are present, else `builtin:mixed` (with a notice).
+pub fn bathroom_or_mixed() -> (String, Vec<Aabb>) {
+    let spec = if emc_cpu::scene::shared_scene_path("pbrt-bathroom").is_some() {
+        "pbrt-bathroom"
+    } else {
+        eprintln!("pbrt-bathroom not found; benchmarking builtin:mixed instead");
+        "builtin:mixed"
+    };
+    let scene = emc_cpu::scene::load(spec).expect("benchmark scene loads");
+    (spec.to_string(), scene.aabbs())
+}
