@@ -248,12 +248,19 @@ pub fn facing_normal(t: &[Vec3; 3], dir: Vec3) -> Vec3 {
 
 /// A cosine-weighted direction around unit `n` from two unit floats, through the
 /// orthonormal basis of Duff et al. (2017); normalized.
+///
+/// The basis' branch is taken on `n.z >= 0.0`, so a normal with `n.z == -0.0` uses the same
+/// basis as one with `+0.0`. This is the protocol's basis as the peers' counts pin it down:
+/// taking the sign bit instead (`copysign(1, n.z)`) flips the basis of every hit whose normal
+/// has a negative-zero z, which is common on axis-aligned walls (a facing flip of `+0.0` gives
+/// `-0.0`), and moves AO-occluded counts by up to 0.07% (sionna-san-francisco 439,978 against
+/// 439,682 with this rule; Embree's harness counts 439,685).
 #[inline]
 pub fn cosine_dir(n: Vec3, u1: f32, u2: f32) -> Vec3 {
     let r = u1.sqrt();
     let phi = 2.0 * core::f32::consts::PI * u2;
     let (x, y, z) = (r * phi.cos(), r * phi.sin(), (1.0 - u1).sqrt());
-    let sign = 1.0f32.copysign(n.z);
+    let sign = if n.z >= 0.0 { 1.0f32 } else { -1.0 };
     let a = -1.0 / (sign + n.z);
     let b = n.x * n.y * a;
     let b1 = Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
