@@ -3,6 +3,7 @@
 //! `morton63` (`(xyz)^21`) and `emc64-sort` (`(a0 a1 a2 s)^16`). No tables, no branches.
 #![forbid(unsafe_code)]
 
+use super::low_mask;
 use crate::layout::Layout;
 
 /// The magic-bits expander of one regular layout.
@@ -113,15 +114,6 @@ impl Magic {
             } & low_mask(self.n);
         }
         q
-    }
-}
-
-#[inline]
-fn low_mask(n: u32) -> u64 {
-    if n >= 64 {
-        u64::MAX
-    } else {
-        (1u64 << n) - 1
     }
 }
 

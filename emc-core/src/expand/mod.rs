@@ -20,6 +20,16 @@ pub mod pdep;
 pub mod reference;
 pub mod table;
 
+/// The low `n` bits set (`n` up to 64): the range mask of an `n`-bit channel value.
+#[inline]
+pub(crate) fn low_mask(n: u32) -> u64 {
+    if n >= 64 {
+        u64::MAX
+    } else {
+        (1u64 << n) - 1
+    }
+}
+
 /// Names of the expansion backends (CLI, CSV and docs use the lower-case names).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Backend {

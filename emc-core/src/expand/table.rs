@@ -14,6 +14,7 @@
 //! shift puts each fragment back in place (8 KiB).
 #![forbid(unsafe_code)]
 
+use super::low_mask;
 use crate::layout::{Channel, Layout};
 
 use super::reference::Reference;
@@ -136,14 +137,5 @@ impl Table {
             }
         }
         q
-    }
-}
-
-#[inline]
-fn low_mask(n: u32) -> u64 {
-    if n >= 64 {
-        u64::MAX
-    } else {
-        (1u64 << n) - 1
     }
 }

@@ -72,17 +72,10 @@ pub const NO_LAYOUT: &str = "none";
 
 /// Every layout variant of the accuracy-versus-time table, in report order.
 pub fn all_variants() -> Vec<Variant> {
-    let mut v: Vec<Variant> = [
-        LayoutSpec::Morton30,
-        LayoutSpec::Morton63,
-        LayoutSpec::Emc32Var,
-        LayoutSpec::Emc64Sort,
-        LayoutSpec::Emc64Var,
-        LayoutSpec::Emc64VarNoSize,
-    ]
-    .into_iter()
-    .map(Variant::plain)
-    .collect();
+    let mut v: Vec<Variant> = LayoutSpec::STANDARD
+        .into_iter()
+        .map(Variant::plain)
+        .collect();
     v.push(Variant {
         spec: LayoutSpec::Morton63,
         cube: true,
