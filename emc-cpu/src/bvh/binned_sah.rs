@@ -481,6 +481,19 @@ fn partition_into(
     (cl, cr)
 }
 
+/// The split when binning finds none (every centroid in one bin): the two halves in range
+/// order, each with its own bounds and the parent's centroid box.
+fn median_halves(
+    refs: &[PrimRef],
+    cbounds: CentroidBox,
+    parallel: bool,
+) -> (usize, (Box3, CentroidBox), (Box3, CentroidBox)) {
+    let half = refs.len() / 2;
+    let (bl, _) = ordered_bounds(&refs[..half], parallel);
+    let (br, _) = ordered_bounds(&refs[half..], parallel);
+    (half, (bl, cbounds), (br, cbounds))
+}
+
 /// Box and centroid box of `refs`; with `parallel`, over fixed chunks folded in chunk order
 /// (so even the sign of a zero bound does not depend on the thread count).
 fn ordered_bounds(refs: &[PrimRef], parallel: bool) -> (Box3, CentroidBox) {
@@ -583,10 +596,8 @@ fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
             (n_left, (left, cl), (right, cr), true)
         }
         Plan::Median => {
-            let half = n / 2;
-            let (bl, _) = ordered_bounds(&src[..half], true);
-            let (br, _) = ordered_bounds(&src[half..], true);
-            (half, (bl, task.cbounds), (br, task.cbounds), false)
+            let (half, l, r) = median_halves(src, task.cbounds, true);
+            (half, l, r, false)
         }
     };
 
@@ -774,10 +785,8 @@ fn build_serial(ctx: Ctx<'_>, root: Task, nb: usize) -> u32 {
                 (n_left, (left, cl), (right, cr), !in_spare)
             }
             Plan::Median => {
-                let half = n / 2;
-                let (bl, _) = ordered_bounds(&cur[..half], false);
-                let (br, _) = ordered_bounds(&cur[half..], false);
-                (half, (bl, task.cbounds), (br, task.cbounds), in_spare)
+                let (half, l, r) = median_halves(cur, task.cbounds, false);
+                (half, l, r, in_spare)
             }
         };
         let left_node = node + 1;
