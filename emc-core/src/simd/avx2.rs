@@ -29,7 +29,7 @@ const SIZE_THRESH: u8 = 1;
 const SIZE_EXACT_SQRT: u8 = 2;
 /// Size by the normative `f64` formula, linear transform.
 const SIZE_EXACT_LINEAR: u8 = 3;
-/// Size by the AVX-512 estimate and in-register threshold lookup (`S <= 6`, see
+/// Size by the AVX-512 estimate and one threshold comparison (`S <= 6`, see
 /// [`super::avx512`]); only set when [`crate::cpu::has_avx512`] said yes.
 pub(super) const SIZE_LOOKUP512: u8 = 4;
 

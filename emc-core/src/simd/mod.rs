@@ -87,9 +87,11 @@ pub enum SizePath {
     Thresholds,
     /// The normative `f64` formula: `sqrt`, divide by `D`, `sqrt` (or `× 2^S / D`).
     Formula,
-    /// Eight boxes at a time in AVX-512 `f64` lanes: an `rsqrt14`/`rcp14` estimate fixed up
-    /// with one comparison against thresholds held in registers (`vpermt2pd`, no memory
-    /// reads). Needs AVX-512 F/DQ/BW/VL and `S <= 6` (64 thresholds); otherwise the formula.
+    /// Eight boxes at a time in AVX-512 `f64` lanes: an `rsqrt14`/`rcp14` estimate `k` fixed
+    /// up with one comparison against the threshold `T(k)`: on the integer side, on bit
+    /// patterns, in the dispatched pdep pipeline; with the thresholds held in registers
+    /// (`vpermt2pd`) on the other expand paths. Needs AVX-512 F/DQ/BW/VL and `S <= 6`
+    /// (64 thresholds); otherwise the formula.
     /// Measured on Zen 4 (`emc64-var`, pdep, both software-pipelined, 16K boxes in cache):
     /// 3.6 against 4.1 times the streaming baseline with the formula.
     Avx512Lookup,
@@ -113,7 +115,7 @@ impl fmt::Display for SizePath {
             SizePath::Thresholds => "size by f32 estimate + threshold fix-up",
             SizePath::Formula => "size by the f64 formula",
             SizePath::Avx512Lookup => {
-                "size by avx-512 f64x8 rsqrt14 estimate + in-register threshold lookup"
+                "size by avx-512 f64x8 rsqrt14 estimate + one threshold comparison"
             }
         })
     }
