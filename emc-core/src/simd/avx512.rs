@@ -191,47 +191,68 @@ unsafe fn run_pdep_t<const LINEAR: bool, const W32: bool>(
     out: *mut u8,
 ) -> usize {
     let c = Consts::new(k);
+    let t = Transpose8::new();
     // The size channel (at most `LOOKUP_BITS` bits here) is deposited by a table load instead
     // of a fourth `pdep`: `st[v] = pdep(v, m[3])` for every 6-bit `v`, built once per batch.
     let st: [u64; 64] = core::array::from_fn(|v| _pdep_u64(v as u64, m[3]));
     // `tb[v] = bits(T(v))`; +inf past `2^S − 1` (never selected: `k <= 2^S − 1`).
     let tb: [u64; 64] = core::array::from_fn(|v| k.thr[v].to_bits());
-    // Software-pipelined: step j quantises groups 2j and 2j + 1 into ring slot j mod 4 while
-    // the integer side expands step j − LAG from its slot, so the vector and the integer
-    // dependency chains overlap. The integer side reads its lanes with scalar loads from the
-    // ring: moving them out of vector registers lane by lane (`vpextrd`, what LLVM made of a
-    // copied buffer) was the bottleneck. Zen 4, `emc64-var`, 16K boxes in cache: 2.48 ns/code
-    // against 2.91 with extraction and the in-register lookup of `size8` (lags 1 and 2 measured
-    // alike; 2 keeps the loads clear of the stores still in flight).
-    const LAG: usize = 2;
+    // Software-pipelined in four stages over steps of eight boxes (groups 2e and 2e + 1),
+    // so that no iteration holds one long dependency chain (a step's chain from its loads to
+    // the size estimate is some 70 cycles long, more than the out-of-order window covers):
+    //   A(j)     load and transpose step j                 → `fields` (registers)
+    //   B(j − 1) positions and `d2` of step j − 1          → ring slot, `d2` (registers)
+    //   C(j − 2) size estimate of step j − 2               → ring slot
+    //   D(j − 3) integer side: pdeps, size fix-up, codes   ← ring slot
+    // The integer side reads its lanes with scalar loads from the ring: moving them out of
+    // vector registers lane by lane (`vpextrd`, what LLVM made of a copied buffer) was the
+    // bottleneck before. Zen 4, `emc64-var`, 16K boxes in cache: 2.91 ns/code with
+    // extraction and the in-register lookup of `size8`, 2.48 with the ring, 2.39 with the
+    // estimate split off, 1.87 with all four stages.
+    const LAG: usize = 3;
     let mut ring = [Lanes::default(); 4];
     let ring = ring.as_mut_ptr();
     let steps = n4.div_ceil(2);
+    let mut fields = [_mm512_setzero_pd(); 6];
+    let mut d2 = _mm512_setzero_pd();
     for j in 0..steps + LAG {
+        if j >= 2 && j - 2 < steps {
+            let est = _mm512_cvtepi64_epi32(estimate8::<LINEAR>(&c, d2));
+            // SAFETY: slot `(j − 2) % 4` of the ring; its size row holds eight u32.
+            unsafe {
+                let slot = &mut *ring.add((j - 2) % 4);
+                _mm256_storeu_si256(slot.q[3].as_mut_ptr() as *mut __m256i, est);
+            }
+        }
+        if j >= 1 && j - 1 < steps {
+            let (q, d) = quantize8(k, fields);
+            // SAFETY: slot `(j − 1) % 4` of the ring; each row holds eight u32, `d2` eight
+            // u64.
+            unsafe {
+                let slot = &mut *ring.add((j - 1) % 4);
+                for ch in 0..3 {
+                    _mm256_storeu_si256(slot.q[ch].as_mut_ptr() as *mut __m256i, q[ch]);
+                }
+                _mm512_storeu_pd(slot.d2.as_mut_ptr() as *mut f64, d);
+            }
+            d2 = d;
+        }
         if j < steps {
             let pa = src.wrapping_add(48 * j);
-            let pb = if 2 * j + 1 < n4 {
-                pa.wrapping_add(24)
+            fields = if 2 * j + 1 < n4 {
+                // SAFETY: groups 2j and 2j + 1 (eight boxes) lie inside `src`.
+                unsafe { fields8(&t, pa) }
             } else {
-                pa
-            };
-            // SAFETY: groups 2j (and 2j + 1 when it exists) lie inside `src`.
-            let ((qa, da), (qb, db)) =
-                unsafe { (positions4(k, pa, true), positions4(k, pb, true)) };
-            let d2 = _mm512_insertf64x4::<1>(_mm512_castpd256_pd512(da), db);
-            let est = _mm512_cvtepi64_epi32(estimate8::<LINEAR>(&c, d2));
-            // SAFETY: `j % 4` indexes the four-slot ring; each row holds eight u32 (two
-            // stores of four), the size row eight u32 and `d2` eight u64.
-            unsafe {
-                let slot = &mut *ring.add(j % 4);
-                for ch in 0..3 {
-                    let row = slot.q[ch].as_mut_ptr() as *mut __m128i;
-                    _mm_storeu_si128(row, qa[ch]);
-                    _mm_storeu_si128(row.add(1), qb[ch]);
+                // A lone last group: its four boxes twice, from a copy.
+                let mut two = [0f32; 48];
+                // SAFETY: group 2j (24 floats) lies inside `src`.
+                unsafe {
+                    core::ptr::copy_nonoverlapping(pa, two.as_mut_ptr(), 24);
+                    core::ptr::copy_nonoverlapping(pa, two.as_mut_ptr().add(24), 24);
                 }
-                _mm256_storeu_si256(slot.q[3].as_mut_ptr() as *mut __m256i, est);
-                _mm512_storeu_pd(slot.d2.as_mut_ptr() as *mut f64, d2);
-            }
+                // SAFETY: `two` holds 48 floats.
+                unsafe { fields8(&t, two.as_ptr()) }
+            };
         }
         if j >= LAG {
             let e = j - LAG;
@@ -265,6 +286,101 @@ unsafe fn run_pdep_t<const LINEAR: bool, const W32: bool>(
         }
     }
     4 * n4
+}
+
+/// The lane permutations of [`positions8`]: for each pair of box fields, the `vpermt2ps`
+/// indices and the lanes whose field lies in the third 64-byte block.
+#[derive(Clone, Copy)]
+struct Transpose8 {
+    idx: [__m512i; 3],
+    hi: [__mmask16; 3],
+}
+
+impl Transpose8 {
+    /// Field `f` of box `i` is float `6i + f` of the 48 (eight boxes, `#[repr(C)]`: min xyz,
+    /// max xyz). Output pair `p` holds field `2p` of boxes 0..8 in lanes 0..8 and field
+    /// `2p + 1` in lanes 8..16; lane `s` takes float `g = 6(s mod 8) + 2p + s / 8`.
+    #[target_feature(enable = "avx512f")]
+    #[inline]
+    fn new() -> Transpose8 {
+        let mut idx = [_mm512_setzero_si512(); 3];
+        let mut hi = [0; 3];
+        for p in 0..3 {
+            let mut v = [0i32; 16];
+            for (s, x) in v.iter_mut().enumerate() {
+                let g = 6 * (s % 8) + 2 * p + s / 8;
+                *x = g as i32;
+                if g >= 32 {
+                    hi[p] |= 1 << s;
+                }
+            }
+            // SAFETY: `v` holds sixteen i32.
+            idx[p] = unsafe { _mm512_loadu_si512(v.as_ptr() as *const __m512i) };
+        }
+        Transpose8 { idx, hi }
+    }
+}
+
+/// The six fields of eight boxes as `f64x8` (`[lx, ly, lz, hx, hy, hz]`: min and max per
+/// axis), transposed by `vpermt2ps` from three 64-byte loads: the loading half of the AVX2
+/// step's [`positions4`], on eight lanes.
+///
+/// ```text
+///   L0 = floats 0..16, L1 = 16..32, L2 = 32..48        (box i, field f at float 6i + f)
+///   pair p, lane s: g = 6(s mod 8) + 2p + s/8
+///     P = vpermt2ps(L0, g mod 32, L1)   right where g < 32
+///     Q = vpermt2ps(L2, g mod 32, L1)   right where g >= 32 (L2 float g − 32)
+///     F_p = blend(g >= 32 ? Q : P)      = [field 2p of boxes 0..8 | field 2p + 1 of 0..8]
+///   F_0 = [mnx | mny], F_1 = [mnz | mxx], F_2 = [mxy | mxz]  → cvtps2pd per half
+/// ```
+///
+/// # Safety
+/// `p` must point at eight consecutive `Aabb` (48 readable `f32`).
+#[target_feature(enable = "avx512f,avx512dq,avx512vl")]
+#[inline]
+unsafe fn fields8(t: &Transpose8, p: *const f32) -> [__m512d; 6] {
+    // SAFETY: 48 floats from `p` by the contract above.
+    let (l0, l1, l2) = unsafe {
+        (
+            _mm512_loadu_ps(p),
+            _mm512_loadu_ps(p.add(16)),
+            _mm512_loadu_ps(p.add(32)),
+        )
+    };
+    let f: [__m512; 3] = core::array::from_fn(|i| {
+        let lo = _mm512_permutex2var_ps(l0, t.idx[i], l1);
+        let hi = _mm512_permutex2var_ps(l2, t.idx[i], l1);
+        _mm512_mask_blend_ps(t.hi[i], lo, hi)
+    });
+    let lo = |v: __m512| _mm512_cvtps_pd(_mm512_castps512_ps256(v));
+    let hi = |v: __m512| _mm512_cvtps_pd(_mm512_extractf32x8_ps::<1>(v));
+    [lo(f[0]), hi(f[0]), lo(f[1]), hi(f[1]), lo(f[2]), hi(f[2])]
+}
+
+/// The position channels (`i32x8` each) and squared diagonals (`f64x8`) of eight boxes from
+/// their [`fields8`]: the arithmetic of the AVX2 step's [`positions4`], bit for bit.
+#[target_feature(enable = "avx512f,avx512dq,avx512vl")]
+#[inline]
+fn quantize8(k: &Kernel, f: [__m512d; 6]) -> ([__m256i; 3], __m512d) {
+    let [lx, ly, lz, hx, hy, hz] = f;
+    let pos = |lo: __m512d, hi: __m512d, a: usize| {
+        let v = _mm512_mul_pd(
+            _mm512_sub_pd(_mm512_add_pd(lo, hi), _mm512_set1_pd(k.o2[a])),
+            _mm512_set1_pd(k.hs[a]),
+        );
+        // As `avx2::position`: `max` maps NaN to 0, then clamp, then truncate.
+        let v = _mm512_max_pd(v, _mm512_setzero_pd());
+        _mm512_cvttpd_epi32(_mm512_min_pd(v, _mm512_set1_pd(k.maxf[a])))
+    };
+    let q = [pos(lx, hx, 0), pos(ly, hy, 1), pos(lz, hz, 2)];
+    let dx = _mm512_sub_pd(hx, lx);
+    let dy = _mm512_sub_pd(hy, ly);
+    let dz = _mm512_sub_pd(hz, lz);
+    let d2 = _mm512_add_pd(
+        _mm512_add_pd(_mm512_mul_pd(dx, dx), _mm512_mul_pd(dy, dy)),
+        _mm512_mul_pd(dz, dz),
+    );
+    (q, d2)
 }
 
 /// One step's lanes of the pdep pipeline: `q[channel][lane]` (the size row holds the
