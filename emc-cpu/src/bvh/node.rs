@@ -48,6 +48,20 @@ impl Node {
         }
     }
 
+    /// The same node with both child links moved by `delta` (wrapping), a leaf unchanged: how
+    /// a depth-first block is moved to another place in the node array. No branch.
+    #[inline(always)]
+    pub(crate) fn with_children_moved(self, delta: u32) -> Node {
+        // All ones for an inner node, zero for a leaf.
+        let inner = (self.b >> 31).wrapping_sub(1);
+        let d = delta & inner;
+        Node {
+            bounds: self.bounds,
+            a: self.a.wrapping_add(d),
+            b: self.b.wrapping_add(d),
+        }
+    }
+
     /// True for a leaf.
     #[inline]
     pub fn is_leaf(&self) -> bool {

@@ -297,11 +297,12 @@ pub(crate) fn combine_with_area(a: &SlotData, b: &SlotData, k: &CollapseParams) 
     let count = a.count + b.count;
     let split = k.ct * ar + a.cost + b.cost;
     let as_leaf = k.ci * ar * count as f64;
-    let (cost, out) = if count <= k.max_leaf && as_leaf < split {
-        (as_leaf, 1)
-    } else {
-        (split, 1 + a.out + b.out)
-    };
+    // Without a branch (the decision is data-dependent, a mispredicted branch costs more than
+    // the select): the mask is all ones when the subtree becomes a leaf.
+    let leafy = (count <= k.max_leaf) & (as_leaf < split);
+    let mask = (leafy as u64).wrapping_neg();
+    let cost = f64::from_bits((as_leaf.to_bits() & mask) | (split.to_bits() & !mask));
+    let out = if leafy { 1 } else { 1 + a.out + b.out };
     let d = SlotData {
         bounds,
         cost,

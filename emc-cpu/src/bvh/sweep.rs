@@ -1,63 +1,94 @@
 //! One-pass LBVH (the engine of builder `lbvh`): the Karras/Apetrei radix tree built by a
-//! left-to-right stack sweep over the sorted codes, each node finished (bounds, cost, SAH-collapse
-//! decision) the moment it closes and written as a post-order record; a relabelling pass then
-//! writes the collapsed BVH in depth-first order. Same tree and same BVH as Karras + refit + emit.
+//! right-to-left stack sweep over the sorted codes, each node finished (bounds, cost, SAH-collapse
+//! decision) the moment it closes and written straight into depth-first order; a streaming copy
+//! then moves the blocks to their output places. Same tree and same BVH as Karras + refit + emit.
 //!
-//! The radix tree is the Cartesian tree of the split distances `Δ(k)` (see `apetrei.rs`): the
-//! split with the largest distance in a leaf range is that range's root. Two equal distances are
-//! always separated by a larger one, so the tree is unique. The sweep keeps the open splits on a
-//! stack (distances decreasing towards the top); a new split first closes every open split of
-//! smaller distance (the current subtree becomes its right child), then opens with the current
-//! subtree as its left child. Everything the sweep touches is either sequential (keys, order,
-//! records) or on the small stack; the only scattered reads are the primitive boxes.
+//! The radix tree is the Cartesian tree of the split levels (see `level`): the split with the
+//! highest level in a leaf range is that range's root. Two equal levels are always separated by
+//! a higher one, so the tree is unique. The sweep keeps the open splits on a stack (levels
+//! decreasing towards the top), each holding its finished right subtree; a new split first closes
+//! every open split of lower level (the current subtree becomes its left child), then opens with
+//! the current subtree as its right child. Everything the sweep touches is either sequential
+//! (keys, order, records) or on the small stack; the only scattered reads are the primitive boxes.
 //!
-//! Records: a closed subtree's records form one contiguous block ending with its root (post
-//! order), so a node that collapses into a leaf just truncates its block and writes one leaf
-//! record; the buffer always holds exactly the collapsed tree.
+//! Records are written from the end of the buffer downwards. Going right to left, a subtree's
+//! right block is written first (highest), its left block below it, its root below that: the
+//! block reads root, left block, right block — depth first, left child right after its parent.
+//! A node that collapses into a leaf drops its block and writes one leaf record at the block's
+//! top, so the buffer always holds exactly the collapsed tree, and no depth is ever needed.
 //!
 //! ```text
-//!   records:  s(T) → [ left block ][ right block ] T     inner record: (bounds, s(T), left)
-//!   output:   T [ left block, depth first ][ right block, depth first ]
-//!   position: pre(v) = s(v) + depth(v)                    (nodes left of v, then ancestors)
+//!   buffer:  ... free ... | P | [ left block ] | [ right block ] | (blocks closed earlier)
+//!                           ^ written last       ^ written first
+//!   inner record P: (bounds, position of left root, position of right root)
 //! ```
 //!
-//! The relabelling reads the records backwards, sequentially, keeping the block starts of the
-//! open ancestors on a stack (its height is the depth), and writes each node at `pre(v)`.
+//! Parallel: the top of the tree is found top-down (each range's root split by binary search)
+//! until the ranges are small enough; each range is swept as a task into its own buffer, the few
+//! top nodes are then finished serially, and the blocks are copied to their output slices in
+//! parallel pieces, child links moved by the block's displacement.
 //!
-//! Parallel: the top of the tree is found top-down (range arg-max of `Δ` from per-block maxima)
-//! until the ranges are small enough; each range is swept as a task, the few top nodes are then
-//! finished serially, and every task relabels its records into its own slice of the output.
+//! The headline SAH needs the sum of every split's area; it is summed exactly (`AreaSum`),
+//! so it does not depend on how the range was cut into tasks.
 
 use emc_core::Aabb;
 use rayon::prelude::*;
 
-use super::apetrei::dist;
 use super::node::{Bvh, Node};
 use super::refit::{zeroed, CollapseParams, SlotData};
 use super::sah::area;
 use crate::sort::RadixKey;
 
-/// Splits per block of the arg-max index.
-const BLOCK: usize = 4096;
 /// Smallest leaf range handed to a task.
 const MIN_TASK: usize = 1 << 14;
+/// Nodes per parallel piece of the final copy.
+const PLACE: usize = 1 << 16;
 /// Primitive boxes prefetched ahead of the sweep.
 const PREFETCH: usize = 16;
 
-/// A closed subtree: its data, its root record and the first record of its block.
+/// Most open splits at once: their levels strictly decrease towards the top and lie in
+/// `1..=96` (see [`level`]).
+const STACK: usize = 97;
+
+/// A closed subtree: its data and its block of records, `root..end` (root first).
 #[derive(Clone, Copy, Debug)]
 struct Closed {
     d: SlotData,
-    rec: u32,
-    start: u32,
+    root: u32,
+    end: u32,
 }
 
-/// An open split: its distance, its index and its finished left subtree.
+/// An open split: its level and its finished right subtree.
 #[derive(Clone, Copy, Debug)]
 struct Open {
-    dist: (u64, u32),
-    k: u32,
-    left: Closed,
+    lvl: u32,
+    right: Closed,
+}
+
+/// Level of split `s` (between sorted positions `s` and `s + 1`): one plus the highest set bit
+/// of the index-augmented distance `Δ(s)` of `apetrei.rs`, counted over the 96-bit word
+/// (key xor, then position xor):
+///
+/// ```text
+///   Δ(s) = ( x = k_s ⊕ k_{s+1} ,  y = s ⊕ (s+1) )
+///   level(s) = 32 + (64 − clz64(x))   if x ≠ 0      (33..=96)
+///            = 32 − clz32(y)           if x = 0      (1..=32)
+/// ```
+///
+/// Comparing levels instead of full distances builds the same Cartesian tree: two splits
+/// `a < b` of equal level always have a split of higher level between them (with keys sorted,
+/// positions `a + 1` and `b` cannot agree above that bit), so the largest level of a range is
+/// unique and a new split never meets an open one of its own level on the stack.
+#[inline(always)]
+pub(crate) fn level<K: RadixKey>(keys: &[K], s: usize) -> u32 {
+    let x = keys[s].widen() ^ keys[s + 1].widen();
+    let by_key = 96 - x.leading_zeros();
+    let by_pos = 32 - ((s as u32) ^ (s as u32 + 1)).leading_zeros();
+    if x != 0 {
+        by_key
+    } else {
+        by_pos
+    }
 }
 
 /// Parent data of two finished children and the parent's area.
@@ -89,16 +120,23 @@ struct Input<'a, K> {
     k: &'a CollapseParams,
 }
 
+/// The record buffer of one sweep, filled from its end: `buf[free..]` holds the records.
+struct Records<'a> {
+    buf: &'a mut [Node],
+    free: usize,
+}
+
 impl<K: RadixKey> Input<'_, K> {
-    /// The leaf of sorted position `p`, appended as a record.
+    /// The leaf of sorted position `p`, written just below the records.
     #[inline(always)]
-    fn leaf(&self, p: usize, rec: &mut Vec<Node>) -> Closed {
-        if let Some(&q) = self.order.get(p + PREFETCH) {
+    fn leaf(&self, p: usize, rec: &mut Records) -> Closed {
+        if let Some(&q) = p.checked_sub(PREFETCH).and_then(|i| self.order.get(i)) {
             prefetch(&self.aabbs[q as usize]);
         }
         let b = self.aabbs[self.order[p] as usize];
-        let at = rec.len() as u32;
-        rec.push(Node::leaf(b, p as u32, 1));
+        let at = rec.free - 1;
+        rec.buf[at] = Node::leaf(b, p as u32, 1);
+        rec.free = at;
         Closed {
             d: SlotData {
                 bounds: b,
@@ -107,100 +145,100 @@ impl<K: RadixKey> Input<'_, K> {
                 count: 1,
                 out: 1,
             },
-            rec: at,
-            start: at,
+            root: at as u32,
+            end: at as u32 + 1,
         }
     }
 
-    /// Close split `o` with right subtree `right`; its area goes to `areas[o.k − base]`.
+    /// Close split `o` with left subtree `left` (whose block lies just below the right
+    /// subtree's); its area is added to `areas`. A subtree that collapses overwrites its block
+    /// with one leaf record at the block's top, one that does not writes its inner record just
+    /// below the block: either way one store, no branch.
     #[inline(always)]
-    fn close(
-        &self,
-        o: &Open,
-        right: &Closed,
-        rec: &mut Vec<Node>,
-        areas: &mut [f64],
-        base: usize,
-    ) -> Closed {
-        let (d, ar) = join(&o.left.d, &right.d, self.k);
-        areas[o.k as usize - base] = ar;
-        let start = o.left.start;
-        if d.out == 1 {
-            rec.truncate(start as usize);
-            rec.push(Node::leaf(d.bounds, d.first, d.count));
+    fn close(&self, o: &Open, left: &Closed, rec: &mut Records, areas: &mut AreaSum) -> Closed {
+        let (d, ar) = join(&left.d, &o.right.d, self.k);
+        areas.add(ar);
+        let end = o.right.end;
+        let (pos, node) = if d.out == 1 {
+            (end as usize - 1, Node::leaf(d.bounds, d.first, d.count))
         } else {
-            // An inner record keeps its block start and its left child; the right child is the
-            // record just before it.
-            rec.push(Node::inner(d.bounds, start, o.left.rec));
-        }
+            (
+                left.root as usize - 1,
+                Node::inner(d.bounds, left.root, o.right.root),
+            )
+        };
+        rec.buf[pos] = node;
+        rec.free = pos;
         Closed {
             d,
-            rec: rec.len() as u32 - 1,
-            start,
+            root: pos as u32,
+            end,
         }
     }
 
-    /// Sweep the leaves `lo..=hi`: records of the collapsed subtree go to `rec` (which must be
-    /// empty), split `s ∈ lo..hi` stores its area at `areas[s − lo]`. Returns the subtree root.
-    fn sweep(
-        &self,
-        lo: usize,
-        hi: usize,
-        rec: &mut Vec<Node>,
-        areas: &mut [f64],
-        stack: &mut Vec<Open>,
-    ) -> Closed {
-        stack.clear();
-        for p in lo..(lo + PREFETCH).min(hi + 1) {
+    /// Sweep the leaves `lo..=hi` from right to left: the collapsed subtree is written depth
+    /// first at the end of `buf` (at least `2·(hi − lo) + 1` long; child links are positions in
+    /// `buf`), the areas of the splits `lo..hi` are added to `areas`. Returns the subtree root
+    /// and its block.
+    fn sweep(&self, lo: usize, hi: usize, buf: &mut [Node], areas: &mut AreaSum) -> Closed {
+        let free = buf.len();
+        let mut rec = Records { buf, free };
+        for p in (hi + 1).saturating_sub(PREFETCH).max(lo)..=hi {
             prefetch(&self.aabbs[self.order[p] as usize]);
         }
-        let mut cur = self.leaf(lo, rec);
-        for s in lo..hi {
-            let ds = dist(self.keys, s);
-            while let Some(top) = stack.last() {
-                if top.dist >= ds {
-                    break;
-                }
-                let o = *top;
-                stack.pop();
-                cur = self.close(&o, &cur, rec, areas, lo);
+        let empty = Open {
+            lvl: 0,
+            right: Closed {
+                d: SlotData {
+                    bounds: Aabb::EMPTY,
+                    cost: 0.0,
+                    first: 0,
+                    count: 0,
+                    out: 0,
+                },
+                root: 0,
+                end: 0,
+            },
+        };
+        let mut stack = [empty; STACK];
+        let mut top = 0usize;
+        let mut cur = self.leaf(hi, &mut rec);
+        for s in (lo..hi).rev() {
+            let l = level(self.keys, s);
+            while top > 0 && stack[top - 1].lvl < l {
+                top -= 1;
+                let o = stack[top];
+                cur = self.close(&o, &cur, &mut rec, areas);
             }
-            stack.push(Open {
-                dist: ds,
-                k: s as u32,
-                left: cur,
-            });
-            cur = self.leaf(s + 1, rec);
+            stack[top] = Open { lvl: l, right: cur };
+            top += 1;
+            cur = self.leaf(s, &mut rec);
         }
-        while let Some(o) = stack.pop() {
-            cur = self.close(&o, &cur, rec, areas, lo);
+        while top > 0 {
+            top -= 1;
+            let o = stack[top];
+            cur = self.close(&o, &cur, &mut rec, areas);
         }
         cur
     }
 }
 
-/// Write the post-order records `rec` (root last) depth first into `dst`, whose first element
-/// is output position `base`.
-fn relabel(rec: &[Node], dst: &mut [Node], base: u32) {
-    let mut open: Vec<u32> = Vec::with_capacity(64);
-    for i in (0..rec.len()).rev() {
-        let nd = rec[i];
-        let i = i as u32;
-        while open.last().is_some_and(|&s| s > i) {
-            open.pop();
-        }
-        let depth = open.len() as u32;
-        if nd.is_leaf() {
-            dst[(i + depth) as usize] = nd;
-        } else {
-            let (start, l) = (nd.left(), nd.right());
-            let pre = start + depth;
-            let lpos = base + pre + 1;
-            let rpos = lpos + (l - start + 1);
-            dst[pre as usize] = Node::inner(nd.bounds, lpos, rpos);
-            open.push(start);
-        }
+/// Copy a depth-first block whose child links are positions in its record buffer (`src[0]`
+/// sits at position `from`) to output position `to`: every inner node's links move by
+/// `to − from`.
+fn place(src: &[Node], dst: &mut [Node], from: u32, to: u32) {
+    let delta = to.wrapping_sub(from);
+    for (d, s) in dst.iter_mut().zip(src) {
+        *d = s.with_children_moved(delta);
     }
+}
+
+/// One swept leaf range: its subtree root and its record buffer (the block `root.root..
+/// root.end`).
+#[derive(Debug)]
+struct Task {
+    root: Closed,
+    rec: Vec<Node>,
 }
 
 /// Where a top node's child lives.
@@ -210,49 +248,51 @@ enum Ref {
     Task(u32),
 }
 
-/// A node above the tasks: its split and children.
+/// A node above the tasks: its children.
 #[derive(Clone, Copy, Debug)]
 struct TopNode {
-    k: usize,
     l: Ref,
     r: Ref,
 }
 
-/// Arg-max of `Δ` over splits `a..b` (non-empty) from per-block maxima.
-fn argmax<K: RadixKey>(keys: &[K], blocks: &[((u64, u32), u32)], a: usize, b: usize) -> usize {
-    let mut best = (dist(keys, a), a);
-    let scan = |best: &mut ((u64, u32), usize), from: usize, to: usize| {
-        for s in from..to {
-            let d = dist(keys, s);
-            if d > best.0 {
-                *best = (d, s);
+/// The split of highest level among the splits `a..b` of the leaves `a..=b` (`a < b`): the
+/// root of that leaf range, found by binary search, as in Karras' top-down construction.
+///
+/// The keys of the range share every bit above the highest bit `h` in which `k_a` and `k_b`
+/// differ, and bit `h` goes from 0 to 1 exactly once: the split is just before the first key
+/// with bit `h` set. When `k_a = k_b` all keys of the range are equal and the positions decide:
+/// the split is just before the one multiple of `2^h` in `a+1..=b`, `h` the highest bit of
+/// `a ⊕ b`.
+fn top_split<K: RadixKey>(keys: &[K], a: usize, b: usize) -> usize {
+    let x = keys[a].widen() ^ keys[b].widen();
+    if x != 0 {
+        let h = 63 - x.leading_zeros();
+        let (mut lo, mut hi) = (a + 1, b);
+        while lo < hi {
+            let mid = lo + (hi - lo) / 2;
+            if (keys[mid].widen() >> h) & 1 != 0 {
+                hi = mid;
+            } else {
+                lo = mid + 1;
             }
         }
-    };
-    let head_end = b.min((a / BLOCK + 1) * BLOCK);
-    scan(&mut best, a + 1, head_end);
-    if head_end < b {
-        let (fb, lb) = (head_end / BLOCK, b / BLOCK);
-        for &(d, s) in &blocks[fb..lb] {
-            if d > best.0 {
-                best = (d, s as usize);
-            }
-        }
-        scan(&mut best, (lb * BLOCK).max(head_end), b);
+        lo - 1
+    } else {
+        let h = 31 - ((a as u32) ^ (b as u32)).leading_zeros();
+        ((b >> h) << h) - 1
     }
-    best.1
 }
 
 /// The finished radix tree of [`sweep_tree`]: per-task post-order records, the top nodes and
-/// the per-split areas; [`Swept::emit`] turns it into the depth-first BVH.
+/// the exact sum of the split areas; [`Swept::emit`] turns it into the depth-first BVH.
 #[derive(Debug)]
 pub struct Swept {
     n: usize,
     order: Vec<u32>,
-    areas: Vec<f64>,
+    areas: AreaSum,
     tops: Vec<TopNode>,
     top_data: Vec<SlotData>,
-    tasks: Vec<(Closed, Vec<Node>)>,
+    tasks: Vec<Task>,
     root: Ref,
 }
 
@@ -266,11 +306,10 @@ pub struct SweepOutput {
     pub sah_headline: f64,
 }
 
-/// Buffers of the sweep kept between builds (see `build::BuildArena`): the per-split areas and
-/// the record buffers of the tasks.
+/// Buffers of the sweep kept between builds (see `build::BuildArena`): the record buffers of
+/// the tasks.
 #[derive(Debug, Default)]
 pub struct SweepScratch {
-    areas: Vec<f64>,
     records: Vec<Vec<Node>>,
 }
 
@@ -301,9 +340,6 @@ pub fn sweep_tree_in<K: RadixKey>(
         "sweep_tree needs n ≥ 1 keys and as many ids"
     );
     let threads = rayon::current_num_threads();
-    // Every split's area is written (by its task or as a top node) before it is read.
-    let mut areas = std::mem::take(&mut scratch.areas);
-    crate::buffers::refill(&mut areas, n - 1, 0.0);
     let target = (n / (threads * 8)).max(MIN_TASK);
 
     // Top of the tree, down to leaf ranges of at most `target` (none when one task does).
@@ -312,21 +348,6 @@ pub fn sweep_tree_in<K: RadixKey>(
     if threads == 1 || n <= target {
         ranges.push((0, n - 1));
     } else {
-        let nb = (n - 1).div_ceil(BLOCK);
-        let blocks: Vec<((u64, u32), u32)> = (0..nb)
-            .into_par_iter()
-            .map(|b| {
-                let (a, e) = (b * BLOCK, ((b + 1) * BLOCK).min(n - 1));
-                let mut best = (dist(keys, a), a as u32);
-                for s in a + 1..e {
-                    let d = dist(keys, s);
-                    if d > best.0 {
-                        best = (d, s as u32);
-                    }
-                }
-                best
-            })
-            .collect();
         // (leaf range, slot to fill: None = root, Some((top, is_right)))
         type Pending = ((usize, usize), Option<(usize, bool)>);
         let mut stack: Vec<Pending> = vec![((0, n - 1), None)];
@@ -335,9 +356,8 @@ pub fn sweep_tree_in<K: RadixKey>(
                 ranges.push((lo, hi));
                 Ref::Task(ranges.len() as u32 - 1)
             } else {
-                let s = argmax(keys, &blocks, lo, hi);
+                let s = top_split(keys, lo, hi);
                 tops.push(TopNode {
-                    k: s,
                     l: Ref::Task(u32::MAX),
                     r: Ref::Task(u32::MAX),
                 });
@@ -353,56 +373,54 @@ pub fn sweep_tree_in<K: RadixKey>(
             }
         }
     }
-    // Ranges are in left-to-right order (the stack pops left ranges first): hand each task its
-    // own run of split areas (splits lo..hi) and sweep them in parallel.
+    // Ranges are in left-to-right order (the stack pops left ranges first); sweep them in
+    // parallel.
     let input = Input {
         keys,
         order: &order,
         aabbs,
         k,
     };
-    let mut jobs: Vec<(usize, usize, &mut [f64])> = Vec::with_capacity(ranges.len());
-    let mut rest: &mut [f64] = &mut areas;
-    let mut offset = 0usize;
-    for &(lo, hi) in &ranges {
-        let (_, tail) = std::mem::take(&mut rest).split_at_mut(lo - offset);
-        let (mine, tail) = tail.split_at_mut(hi - lo);
-        jobs.push((lo, hi, mine));
-        rest = tail;
-        offset = hi;
-    }
-    // One record buffer per task, reused from earlier builds where there are some.
+    let mut jobs = ranges;
+    // One record buffer per task, reused from earlier builds where one is long enough, else
+    // fresh zeroed memory (faulted in only as far as the sweep writes).
     let mut recs: Vec<Vec<Node>> = Vec::with_capacity(jobs.len());
-    for _ in 0..jobs.len() {
-        recs.push(scratch.records.pop().unwrap_or_default());
+    for &(lo, hi) in &jobs {
+        let need = 2 * (hi - lo) + 1;
+        let b = match scratch.records.iter().position(|b| b.len() >= need) {
+            Some(i) => scratch.records.swap_remove(i),
+            None => zeroed(need),
+        };
+        recs.push(b);
     }
-    let tasks: Vec<(Closed, Vec<Node>)> = if jobs.len() == 1 {
-        let (lo, hi, a) = jobs.pop().expect("one job");
-        let mut rec = recs.pop().expect("one buffer");
-        rec.clear();
-        rec.reserve(2 * (hi - lo) + 1);
-        let c = input.sweep(lo, hi, &mut rec, a, &mut Vec::new());
-        vec![(c, rec)]
+    let run = |(lo, hi): (usize, usize), mut rec: Vec<Node>| {
+        let mut areas = AreaSum::new();
+        let root = input.sweep(lo, hi, &mut rec, &mut areas);
+        (Task { root, rec }, areas)
+    };
+    let (tasks, sums): (Vec<Task>, Vec<AreaSum>) = if jobs.len() == 1 {
+        let job = jobs.pop().expect("one job");
+        let (t, a) = run(job, recs.pop().expect("one buffer"));
+        (vec![t], vec![a])
     } else {
         jobs.into_par_iter()
             .zip(recs)
             .with_max_len(1)
-            .map_init(Vec::new, |stack, ((lo, hi, a), mut rec)| {
-                rec.clear();
-                rec.reserve(2 * (hi - lo) + 1);
-                let c = input.sweep(lo, hi, &mut rec, a, stack);
-                (c, rec)
-            })
-            .collect()
+            .map(|(job, rec)| run(job, rec))
+            .unzip()
     };
+    let mut areas = AreaSum::new();
+    for s in &sums {
+        areas.merge(s);
+    }
     // Finish the top nodes bottom-up (children were created after their parents).
-    let mut top_data: Vec<SlotData> = vec![tasks[0].0.d; tops.len()];
+    let mut top_data: Vec<SlotData> = vec![tasks[0].root.d; tops.len()];
     for t in (0..tops.len()).rev() {
         let a = data_of(tops[t].l, &top_data, &tasks);
         let b = data_of(tops[t].r, &top_data, &tasks);
         let (d, ar) = join(&a, &b, k);
         top_data[t] = d;
-        areas[tops[t].k] = ar;
+        areas.add(ar);
     }
     let root = if tops.is_empty() {
         Ref::Task(0)
@@ -422,10 +440,10 @@ pub fn sweep_tree_in<K: RadixKey>(
 
 /// Data of a top node or task root.
 #[inline]
-fn data_of(r: Ref, top_data: &[SlotData], tasks: &[(Closed, Vec<Node>)]) -> SlotData {
+fn data_of(r: Ref, top_data: &[SlotData], tasks: &[Task]) -> SlotData {
     match r {
         Ref::Top(t) => top_data[t as usize],
-        Ref::Task(t) => tasks[t as usize].0.d,
+        Ref::Task(t) => tasks[t as usize].root.d,
     }
 }
 
@@ -453,7 +471,6 @@ impl Swept {
     pub fn emit_in(self, mut nodes: Vec<Node>, scratch: &mut SweepScratch) -> Bvh {
         let Swept {
             order,
-            areas,
             tops,
             top_data,
             tasks,
@@ -462,8 +479,10 @@ impl Swept {
         } = self;
         let total = data_of(root, &top_data, &tasks).out as usize;
         // Every output slot is written below (top nodes, then each task's run).
-        if nodes.capacity() >= total {
-            nodes.clear();
+        if nodes.len() >= total {
+            // A recycled buffer: no pass over memory that is about to be overwritten.
+            nodes.truncate(total);
+        } else if nodes.capacity() >= total {
             nodes.resize(total, Node::default());
         } else {
             nodes = zeroed(total);
@@ -490,27 +509,34 @@ impl Swept {
             }
         }
         placed.sort_unstable_by_key(|p| p.1);
-        let mut jobs: Vec<(&[Node], &mut [Node], u32)> = Vec::with_capacity(placed.len());
+        // Each task's block goes to its output slice, in pieces of at most `PLACE` nodes.
+        type Job<'a> = (&'a [Node], &'a mut [Node], u32, u32);
+        let mut jobs: Vec<Job> = Vec::with_capacity(placed.len());
         let mut rest: &mut [Node] = &mut nodes;
         let mut offset = 0u32;
         for &(t, pos) in &placed {
-            let rec = &tasks[t as usize].1;
+            let task = &tasks[t as usize];
+            let (from, end) = (task.root.root, task.root.end);
+            let rec = &task.rec[from as usize..end as usize];
             let (_, tail) = std::mem::take(&mut rest).split_at_mut((pos - offset) as usize);
             let (mine, tail) = tail.split_at_mut(rec.len());
-            jobs.push((rec, mine, pos));
+            for (i, (src, dst)) in rec.chunks(PLACE).zip(mine.chunks_mut(PLACE)).enumerate() {
+                let skip = (i * PLACE) as u32;
+                jobs.push((src, dst, from + skip, pos + skip));
+            }
             rest = tail;
             offset = pos + rec.len() as u32;
         }
-        if jobs.len() == 1 {
-            let (rec, dst, base) = jobs.pop().expect("one job");
-            relabel(rec, dst, base);
+        if rayon::current_num_threads() == 1 {
+            for (src, dst, from, to) in jobs {
+                place(src, dst, from, to);
+            }
         } else {
             jobs.into_par_iter()
                 .with_max_len(1)
-                .for_each(|(rec, dst, base)| relabel(rec, dst, base));
+                .for_each(|(src, dst, from, to)| place(src, dst, from, to));
         }
-        scratch.areas = areas;
-        scratch.records.extend(tasks.into_iter().map(|t| t.1));
+        scratch.records.extend(tasks.into_iter().map(|t| t.rec));
         Bvh {
             nodes,
             prim_indices: order,
@@ -519,20 +545,78 @@ impl Swept {
     }
 }
 
-/// Headline SAH from the per-split areas (summed in fixed chunks in index order), the primitive
-/// boxes (likewise) and the root box; as `RadixTree::sah_headline` defines it.
-fn headline(areas: &[f64], aabbs: &[Aabb], root: &Aabb, n: usize) -> f64 {
+/// Headline SAH from the exact sum of the split areas, the primitive boxes (their areas summed
+/// in fixed chunks in index order) and the root box; as `RadixTree::sah_headline` defines it.
+fn headline(areas: &AreaSum, aabbs: &[Aabb], root: &Aabb, n: usize) -> f64 {
     const CH: usize = 1 << 15;
-    let inner: Vec<f64> = areas.par_chunks(CH).map(|c| c.iter().sum()).collect();
     let leaves: Vec<f64> = aabbs
         .par_chunks(CH)
         .map(|c| c.iter().map(area).sum())
         .collect();
-    let total = inner.iter().sum::<f64>() + leaves.iter().sum::<f64>();
+    let total = areas.value() + leaves.iter().sum::<f64>();
     let ra = area(root);
     if ra > 0.0 {
         total / ra
     } else {
-        (areas.len() + n) as f64
+        (n - 1 + n) as f64
+    }
+}
+
+/// Exact sum of non-negative finite `f64` values (the split areas of the headline SAH), so that
+/// the result does not depend on how the sweep was cut into tasks: each value's 53-bit
+/// significand is added, as an integer, to the 128-bit bucket of its exponent.
+///
+/// ```text
+///   bits of x:  0 | e (11) | f (52)        x = m · 2^(max(e,1) − 1075),  m = f | [e ≠ 0]·2^52
+///   bucket[e] += m                         (< 2^85 after 2^32 values: no overflow)
+/// ```
+#[derive(Clone, Debug)]
+pub(crate) struct AreaSum {
+    bucket: Box<[u128; 2048]>,
+}
+
+impl AreaSum {
+    /// Zero.
+    pub(crate) fn new() -> AreaSum {
+        AreaSum {
+            bucket: Box::new([0; 2048]),
+        }
+    }
+
+    /// Add `x` (non-negative and finite; the sign bit is ignored).
+    #[inline(always)]
+    pub(crate) fn add(&mut self, x: f64) {
+        let b = x.to_bits();
+        let e = ((b >> 52) & 0x7ff) as usize;
+        let m = (b & ((1 << 52) - 1)) | (((e != 0) as u64) << 52);
+        self.bucket[e] += m as u128;
+    }
+
+    /// Add another sum.
+    pub(crate) fn merge(&mut self, o: &AreaSum) {
+        for (a, b) in self.bucket.iter_mut().zip(o.bucket.iter()) {
+            *a += *b;
+        }
+    }
+
+    /// The sum, rounded: each bucket converted and scaled by its power of two (exact), added
+    /// from the smallest exponent up. A function of the bucket contents only.
+    pub(crate) fn value(&self) -> f64 {
+        let mut total = 0.0f64;
+        for (e, &m) in self.bucket.iter().enumerate() {
+            if m != 0 {
+                total += m as f64 * pow2(e.max(1) as i32 - 1075);
+            }
+        }
+        total
+    }
+}
+
+/// `2^k` for `−1074 ≤ k ≤ 1023`, exactly (subnormal below −1022).
+fn pow2(k: i32) -> f64 {
+    if k >= -1022 {
+        f64::from_bits(((k + 1023) as u64) << 52)
+    } else {
+        f64::from_bits(1u64 << (k + 1074))
     }
 }
