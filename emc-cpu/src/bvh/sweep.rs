@@ -620,3 +620,68 @@ fn pow2(k: i32) -> f64 {
         f64::from_bits(1u64 << (k + 1074))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// xorshift64*: deterministic test input.
+    fn rng(s: &mut u64) -> u64 {
+        *s ^= *s >> 12;
+        *s ^= *s << 25;
+        *s ^= *s >> 27;
+        s.wrapping_mul(0x2545_f491_4f6c_dd1d)
+    }
+
+    #[test]
+    fn area_sum_is_exact_and_order_free() {
+        let mut s = 7u64;
+        let mut xs: Vec<f64> = (0..50_000)
+            .map(|_| match rng(&mut s) % 4 {
+                0 => 0.0,
+                1 => f64::from_bits(rng(&mut s) % 1000), // subnormal
+                _ => f64::from_bits(rng(&mut s) & 0x7fef_ffff_ffff_ffff) * 1e-200,
+            })
+            .filter(|x| x.is_finite())
+            .collect();
+        let mut a = AreaSum::new();
+        xs.iter().for_each(|&x| a.add(x));
+        // Another order, split into two partial sums.
+        xs.reverse();
+        let (l, r) = xs.split_at(xs.len() / 3);
+        let (mut b, mut c) = (AreaSum::new(), AreaSum::new());
+        l.iter().for_each(|&x| b.add(x));
+        r.iter().for_each(|&x| c.add(x));
+        b.merge(&c);
+        assert_eq!(a.value().to_bits(), b.value().to_bits());
+        // Small integers are summed exactly.
+        let mut e = AreaSum::new();
+        for i in 0..1000 {
+            e.add(i as f64 * 0.5);
+        }
+        assert_eq!(e.value(), 249_750.0);
+        assert_eq!(AreaSum::new().value(), 0.0);
+        assert_eq!(pow2(-1074), f64::from_bits(1));
+        assert_eq!(pow2(0), 1.0);
+    }
+
+    #[test]
+    fn top_split_is_the_highest_level() {
+        let mut s = 3u64;
+        for round in 0..300 {
+            let n = 2 + (rng(&mut s) % 200) as usize;
+            // Few distinct keys (runs of equal keys) or many.
+            let m = if round % 2 == 0 { 4 } else { 1 << 40 };
+            let mut keys: Vec<u64> = (0..n).map(|_| rng(&mut s) % m).collect();
+            keys.sort_unstable();
+            for _ in 0..20 {
+                let a = (rng(&mut s) % (n as u64 - 1)) as usize;
+                let b = a + 1 + (rng(&mut s) % (n - 1 - a) as u64) as usize;
+                let best = (a..b).max_by_key(|&x| level(&keys, x)).unwrap();
+                let top = level(&keys, best);
+                assert_eq!((a..b).filter(|&x| level(&keys, x) == top).count(), 1);
+                assert_eq!(top_split(&keys, a, b), best, "{keys:?} {a} {b}");
+            }
+        }
+    }
+}
