@@ -157,8 +157,9 @@ impl WideBvh {
     /// The tree is first checked by [`Bvh::validate`] against the triangles' boxes (every
     /// triangle exactly once, every box contains its subtree), so no hit can be lost; a tree
     /// deeper than [`MAX_DEPTH`] after collapsing is refused with [`TraceError::TooDeep`].
-    /// Each wide node takes its BVH2 node's two children and repeatedly opens the inner child
-    /// of largest surface area until it has four (eight) children or only leaves.
+    /// The 8-wide tree is the SAH-optimal cover of the BVH2 by nodes of up to eight children
+    /// and leaves of whole subtrees (see `Plan`); the 4-wide tree is the optimal cover with
+    /// up to four children over the same leaves.
     pub fn from_bvh2(bvh: &Bvh, tris: &[[Vec3; 3]]) -> Result<WideBvh, TraceError> {
         if tris.is_empty() {
             return Err(TraceError::NoTriangles);
@@ -184,18 +185,21 @@ impl WideBvh {
         // inside. It covers origins no farther from 0 than the geometry (then |o| ≤ M).
         let pad = max_abs * (1.0 / 65536.0);
         let mut packets = Vec::with_capacity(tris.len() / 2);
-        // Leaf code of every BVH2 leaf, written by the 4-wide collapse (which emits the
-        // packets in its depth-first order) and read by the 8-wide one: both open only inner
-        // nodes, so they reach the same BVH2 leaves.
+        // The 8-wide tree chooses the leaves (and emits their packets in its depth-first
+        // order); the 4-wide tree is planned over exactly those leaves and shares them.
+        let plan8 = Plan::<WIDTH8>::new(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false);
         let mut leaf_codes = vec![EMPTY; bvh.nodes.len()];
         let mut leaves = 0;
-        let (nodes, depth) = collapse::<WIDTH>(bvh, pad, |n| {
-            let code = emit_leaf(&mut packets, bvh, n, tris);
+        let mut prims = Vec::new();
+        let (nodes8, depth8) = collapse::<WIDTH8>(bvh, &plan8, pad, |n| {
+            let code = emit_leaf(&mut packets, &mut prims, bvh, n, tris);
             leaf_codes[n as usize] = code;
             leaves += 1;
             code
         })?;
-        let (nodes8, depth8) = collapse::<WIDTH8>(bvh, pad, |n| leaf_codes[n as usize])?;
+        drop(plan8);
+        let plan4 = Plan::<WIDTH>::new(bvh, |_, _| false, |n| leaf_codes[n as usize] != EMPTY);
+        let (nodes, depth) = collapse::<WIDTH>(bvh, &plan4, pad, |n| leaf_codes[n as usize])?;
         Ok(WideBvh {
             nodes,
             nodes8,
@@ -221,28 +225,182 @@ impl WideBvh {
     }
 }
 
-/// Collapse the validated, non-empty `bvh` into a `W`-wide tree: each wide node takes its BVH2
-/// node's two children and repeatedly opens the inner child of largest surface area until it
-/// has `W` children or only leaves. `leaf(n)` gives the child code of BVH2 leaf `n` (called
-/// once per leaf, in depth-first order). Returns the nodes (depth-first pre-order) and depth.
+/// Cost of testing one wide node, per unit of its surface area (the SAH's `Ct`).
+const COST_NODE: f32 = 1.0;
+/// Cost of testing one triangle packet, per unit of its leaf's surface area (`Ci` per packet:
+/// one to four triangles cost the same SIMD pass).
+const COST_PACKET: f32 = 1.0;
+/// Most triangles the collapse gathers from several BVH2 leaves into one wide leaf (a BVH2
+/// leaf that is larger on its own stays whole).
+const MAX_LEAF_TRIANGLES: u32 = 8;
+
+/// The SAH-optimal covers of every BVH2 subtree by at most `i` wide-tree children
+/// (`i = 1..=W`), computed bottom-up in the manner of Ylitie, Karras and Laine (2017).
+///
+/// ```text
+///   cost(n, 1) = min(leaf(n), Cn·A(n) + dist(n, W))      n as one child: a leaf or a node
+///   cost(n, i) = min(cost(n, i − 1), dist(n, i))          i ≥ 2
+///   dist(n, j) = min over k in 1..j of cost(l, k) + cost(r, j − k)   (l, r: n's children)
+///   leaf(n)    = Cp·A(n)·⌈P(n)/4⌉   when n may be a leaf, else +inf
+/// ```
+/// A BVH2 leaf is always one leaf (`cost(n, i) = leaf(n)`). `A` is the half surface area.
+struct Plan<const W: usize> {
+    /// `cost[n][i − 1]` = `cost(n, i)`.
+    cost: Vec<[f32; W]>,
+    /// `split[n][j − 1]` = the `k` of `dist(n, j)` (slots given to the left child), j ≥ 2.
+    split: Vec<[u8; W]>,
+    /// Node `n`, taken as one child, is a leaf.
+    leaf: Vec<bool>,
+}
+
+impl<const W: usize> Plan<W> {
+    /// Plan the collapse of the validated `bvh`. `may_leaf(n, triangles)` says whether inner
+    /// BVH2 node `n`, whose subtree holds `triangles`, may become one leaf; `forced(n)` makes
+    /// node `n` a leaf whatever it costs (its subtree is then never opened).
+    fn new(bvh: &Bvh, may_leaf: impl Fn(u32, u32) -> bool, forced: impl Fn(u32) -> bool) -> Self {
+        let n = bvh.nodes.len();
+        let mut plan = Plan {
+            cost: vec![[0.0; W]; n],
+            split: vec![[0; W]; n],
+            leaf: vec![false; n],
+        };
+        let mut prims = vec![0u32; n];
+        // Pre-order; its reverse visits children before parents.
+        let mut pre = Vec::with_capacity(n);
+        let mut stack = vec![bvh.root];
+        while let Some(i) = stack.pop() {
+            pre.push(i);
+            let node = &bvh.nodes[i as usize];
+            if !node.is_leaf() && !forced(i) {
+                stack.push(node.right());
+                stack.push(node.left());
+            }
+        }
+        for &i in pre.iter().rev() {
+            let node = &bvh.nodes[i as usize];
+            let a = half_area(&node.bounds);
+            let at = i as usize;
+            if node.is_leaf() || forced(i) {
+                let p = if node.is_leaf() {
+                    node.count()
+                } else {
+                    subtree_triangles(bvh, i)
+                };
+                prims[at] = p;
+                plan.cost[at] = [leaf_cost(a, p); W];
+                plan.leaf[at] = true;
+                continue;
+            }
+            let (l, r) = (node.left() as usize, node.right() as usize);
+            let p = prims[l] + prims[r];
+            prims[at] = p;
+            let (cl, cr) = (plan.cost[l], plan.cost[r]);
+            let mut dist = [f32::INFINITY; W];
+            let mut split = [0u8; W];
+            for j in 2..=W {
+                for k in 1..j {
+                    let c = cl[k - 1] + cr[j - k - 1];
+                    if c < dist[j - 1] {
+                        dist[j - 1] = c;
+                        split[j - 1] = k as u8;
+                    }
+                }
+            }
+            let inner = COST_NODE * a + dist[W - 1];
+            let as_leaf = if may_leaf(i, p) {
+                leaf_cost(a, p)
+            } else {
+                f32::INFINITY
+            };
+            let mut cost = [0.0f32; W];
+            if as_leaf <= inner {
+                cost[0] = as_leaf;
+                plan.leaf[at] = true;
+            } else {
+                cost[0] = inner;
+            }
+            for j in 2..=W {
+                cost[j - 1] = cost[j - 2].min(dist[j - 1]);
+            }
+            plan.cost[at] = cost;
+            plan.split[at] = split;
+        }
+        plan
+    }
+
+    /// The BVH2 nodes that become the children of the wide node made of inner node `n`, in
+    /// depth-first order.
+    fn children(&self, bvh: &Bvh, n: u32, out: &mut Vec<u32>) {
+        out.clear();
+        let node = &bvh.nodes[n as usize];
+        let k = self.split[n as usize][W - 1] as usize;
+        // (BVH2 node, slots it may use), right part pushed first so the left comes out first.
+        let mut todo: Vec<(u32, usize)> = vec![(node.right(), W - k), (node.left(), k)];
+        while let Some((m, mut i)) = todo.pop() {
+            let c = &self.cost[m as usize];
+            // Fewer slots give the same cost: use fewer (ties go to the smaller cover).
+            while i > 1 && c[i - 1] == c[i - 2] {
+                i -= 1;
+            }
+            if i == 1 {
+                out.push(m);
+            } else {
+                let mn = &bvh.nodes[m as usize];
+                let k = self.split[m as usize][i - 1] as usize;
+                todo.push((mn.right(), i - k));
+                todo.push((mn.left(), k));
+            }
+        }
+    }
+}
+
+/// Half the surface area of `b`.
+fn half_area(b: &Aabb) -> f32 {
+    let e = b.max - b.min;
+    e.x * e.y + e.y * e.z + e.z * e.x
+}
+
+/// Cost of a leaf of `p` triangles and half area `a`: one packet test per 4 triangles.
+fn leaf_cost(a: f32, p: u32) -> f32 {
+    COST_PACKET * a * p.div_ceil(WIDTH as u32) as f32
+}
+
+/// Triangles under BVH2 node `n`.
+fn subtree_triangles(bvh: &Bvh, n: u32) -> u32 {
+    let mut total = 0;
+    let mut stack = vec![n];
+    while let Some(i) = stack.pop() {
+        let node = &bvh.nodes[i as usize];
+        if node.is_leaf() {
+            total += node.count();
+        } else {
+            stack.push(node.right());
+            stack.push(node.left());
+        }
+    }
+    total
+}
+
+/// Emit the `W`-wide tree `plan` describes for the validated, non-empty `bvh`. `leaf(n)` gives
+/// the child code of leaf `n` (called once per leaf, in depth-first order). Returns the nodes
+/// (depth-first pre-order) and the depth.
 fn collapse<const W: usize>(
     bvh: &Bvh,
+    plan: &Plan<W>,
     pad: f32,
     mut leaf: impl FnMut(u32) -> u32,
 ) -> Result<(Vec<WideNodeN<W>>, usize), TraceError> {
-    let half_area = |b: &Aabb| {
-        let e = b.max - b.min;
-        e.x * e.y + e.y * e.z + e.z * e.x
-    };
-    let mut nodes: Vec<WideNodeN<W>> = Vec::with_capacity(bvh.nodes.len() / (W / 2) + 1);
+    let mut nodes: Vec<WideNodeN<W>> = Vec::with_capacity(bvh.nodes.len() / W + 1);
     let mut max_depth = 0;
     let root = &bvh.nodes[bvh.root as usize];
     nodes.push(WideNodeN::empty());
-    if root.is_leaf() {
+    if plan.leaf[bvh.root as usize] {
         let code = leaf(bvh.root);
         nodes[0].set(0, &root.bounds, code, pad);
         return Ok((nodes, 0));
     }
+    let mut kids = Vec::with_capacity(W);
+    let mut inner = Vec::with_capacity(W);
     // Work items: (BVH2 node, wide parent index, lane, depth of the new wide node).
     let mut work: Vec<(u32, usize, usize, usize)> = vec![(bvh.root, usize::MAX, 0, 0)];
     while let Some((n2, parent, lane, depth)) = work.pop() {
@@ -261,28 +419,12 @@ fn collapse<const W: usize>(
             nodes[parent].child[lane] = i as u32;
             i
         };
-        let node = &bvh.nodes[n2 as usize];
-        let mut kids: Vec<u32> = vec![node.left(), node.right()];
-        while kids.len() < W {
-            let best = kids
-                .iter()
-                .enumerate()
-                .filter(|(_, &k)| !bvh.nodes[k as usize].is_leaf())
-                .map(|(i, &k)| (i, half_area(&bvh.nodes[k as usize].bounds)))
-                .fold(None, |acc: Option<(usize, f32)>, (i, a)| match acc {
-                    Some((_, ba)) if ba >= a => acc,
-                    _ => Some((i, a)),
-                });
-            let Some((i, _)) = best else { break };
-            let k = bvh.nodes[kids[i] as usize];
-            kids[i] = k.left();
-            kids.insert(i + 1, k.right());
-        }
+        plan.children(bvh, n2, &mut kids);
         // Leaves first (their triangles follow the parent), then inner children in order.
-        let mut inner = Vec::with_capacity(W);
+        inner.clear();
         for (lane, &k) in kids.iter().enumerate() {
             let kn = &bvh.nodes[k as usize];
-            if kn.is_leaf() {
+            if plan.leaf[k as usize] {
                 let code = leaf(k);
                 nodes[me].set(lane, &kn.bounds, code, pad);
             } else {
@@ -297,11 +439,28 @@ fn collapse<const W: usize>(
     Ok((nodes, max_depth))
 }
 
-/// Append the triangle packets of BVH2 leaf `n` and return its child code.
-fn emit_leaf(packets: &mut Vec<TriPacket>, bvh: &Bvh, n: u32, tris: &[[Vec3; 3]]) -> u32 {
-    let leaf = &bvh.nodes[n as usize];
+/// Append the triangle packets of BVH2 node `n`'s subtree (one leaf of the wide trees) and
+/// return its child code.
+fn emit_leaf(
+    packets: &mut Vec<TriPacket>,
+    prims: &mut Vec<u32>,
+    bvh: &Bvh,
+    n: u32,
+    tris: &[[Vec3; 3]],
+) -> u32 {
+    prims.clear();
+    let mut stack = vec![n];
+    while let Some(i) = stack.pop() {
+        let node = &bvh.nodes[i as usize];
+        if node.is_leaf() {
+            let f = node.first() as usize;
+            prims.extend_from_slice(&bvh.prim_indices[f..f + node.count() as usize]);
+        } else {
+            stack.push(node.right());
+            stack.push(node.left());
+        }
+    }
     let first = packets.len() as u32;
-    let prims = &bvh.prim_indices[leaf.first() as usize..(leaf.first() + leaf.count()) as usize];
     let chunks = prims.chunks(WIDTH);
     let k = chunks.len();
     for (c, chunk) in chunks.enumerate() {
