@@ -198,6 +198,28 @@ pub struct PhaseTime {
     pub wall_ms: f64,
     /// CPU milliseconds summed over the pool's threads.
     pub cpu_ms: f64,
+    /// CPU milliseconds of the phase's serial part, from per-thread CPU accounting: with `T`
+    /// threads whose CPU times in the phase are `c_1..c_T` (sum `C`, largest `c_max`), the work
+    /// `C` is read as a serial part `S` done on one thread while the others wait plus a part
+    /// shared evenly, `c_max = S + (C − S)/T`, so `S = (T·c_max − C)/(T − 1)` (summed over the
+    /// phase's runs). With two threads `S = c_max − c_min` exactly: CPU time one thread spent
+    /// while the other did no work of the phase. Load imbalance counts as serial; a waiting
+    /// thread's brief spinning counts as work, so `S` errs low by that. Equal to `cpu_ms` on
+    /// one thread.
+    pub serial_cpu_ms: f64,
+}
+
+impl PhaseTime {
+    /// The phase's serial share `serial_cpu_ms / cpu_ms` (0 when the phase did not run): the
+    /// fraction of its work that ran on one thread only (1 on a one-thread pool). Amdahl's law
+    /// then bounds its speed-up on `T` threads by `1 / (s + (1 − s)/T)`.
+    pub fn serial_share(&self) -> f64 {
+        if self.cpu_ms > 0.0 {
+            (self.serial_cpu_ms / self.cpu_ms).clamp(0.0, 1.0)
+        } else {
+            0.0
+        }
+    }
 }
 
 /// What a build measured and produced (besides the BVH).
@@ -234,6 +256,7 @@ impl BuildReport {
         for p in &self.phases {
             t.wall_ms += p.wall_ms;
             t.cpu_ms += p.cpu_ms;
+            t.serial_cpu_ms += p.serial_cpu_ms;
         }
         t
     }
@@ -301,21 +324,34 @@ impl Timed {
         })
     }
 
-    /// CPU milliseconds of all pool threads so far.
-    fn pool_cpu(&self) -> f64 {
-        crate::cputime::pool_cpu_time(&self.pool).as_secs_f64() * 1e3
+    /// CPU milliseconds of every pool thread so far (by thread index).
+    fn thread_cpus(&self) -> Vec<f64> {
+        crate::cputime::pool_thread_cpu_times(&self.pool)
+            .into_iter()
+            .map(|d| d.as_secs_f64() * 1e3)
+            .collect()
     }
 
-    /// Run `f` in the pool as phase `p` (time adds up if a phase runs twice).
+    /// Run `f` in the pool as phase `p` (times add up if a phase runs twice).
     fn run<R: Send>(&mut self, p: Phase, f: impl FnOnce() -> R + Send) -> R {
-        let c0 = self.pool_cpu();
+        let c0 = self.thread_cpus();
         let t0 = Instant::now();
         let r = self.pool.install(f);
         let wall = t0.elapsed().as_secs_f64() * 1e3;
-        let cpu = self.pool_cpu() - c0;
+        let c1 = self.thread_cpus();
+        let used: Vec<f64> = c1.iter().zip(&c0).map(|(b, a)| b - a).collect();
+        let cpu: f64 = used.iter().sum();
+        let busiest = used.iter().copied().fold(0.0, f64::max);
+        let t = used.len() as f64;
+        let serial = if used.len() > 1 {
+            ((t * busiest - cpu) / (t - 1.0)).clamp(0.0, cpu)
+        } else {
+            cpu
+        };
         let slot = &mut self.phases[p as usize];
         slot.wall_ms += wall;
         slot.cpu_ms += cpu;
+        slot.serial_cpu_ms += serial;
         r
     }
 }

@@ -1,32 +1,55 @@
-//! Parallel LSD radix sort of (code, primitive index) pairs: step 3 of the LBVH pipeline.
-//! Stable, 8-bit digits, passes whose digit is the same in every key are skipped (found from the
-//! per-chunk histograms of one up-front counting pass); the result is the unique stable order, so
-//! it is bit-identical for any thread count.
+//! Parallel radix sort of (code, primitive index) pairs: step 3 of the LBVH pipeline.
+//! Hybrid, on the bits that vary only: one parallel most-significant-digit split of the whole
+//! array by its top varying bits into cache-sized buckets, then every bucket is an independent
+//! task sorted least-significant-digit first in the core's cache.
+//!
+//! ```text
+//!   key bits:  63 ......... hi | hi-1 .... hi-w | hi-w-1 ............ lo | lo-1 ..... 0
+//!              same in all keys| split digit    | bucket's LSD digits     | same in all keys
+//!   split:     w ≤ 11 bits (about 4096 pairs per bucket), every thread counts and scatters its
+//!              own contiguous chunk into its own slots of every bucket
+//!   bucket:    its own varying bits (bucket mask), 8-bit digits from its lowest varying bit,
+//!              all histograms from one counting pass, digits constant in the bucket skipped,
+//!              ping-pong between the two buffers in cache; ≤ 32 pairs: insertion sort
+//! ```
+//!
+//! Buckets of 64Ki pairs or more are split again the same way. Every step is stable and a range
+//! whose keys are all equal is left as it is, so the result is the unique stable order:
+//! bit-identical for any thread count. Which step a range gets depends on its size only, so one
+//! thread does the same work as many.
 
 use rayon::prelude::*;
 
-/// Number of buckets per pass (8-bit digits).
-const RADIX: usize = 256;
+/// Ranges of at most this many pairs are insertion-sorted.
+const INSERTION_MAX: usize = 32;
 
-/// Below this many pairs a single chunk (no task spawning) is used.
-const SERIAL_BELOW: usize = 1 << 14;
+/// Below this many pairs a range is split on one thread (no tasks, no chunk histograms).
+const PARALLEL_MIN: usize = 1 << 16;
 
-/// A key the radix sort can order: an unsigned integer read as `BYTES` 8-bit digits.
+/// Widest digit of the parallel first split (2048 buckets).
+const TOP_BITS_MAX: u32 = 11;
+
+/// Buckets of an in-cache LSD pass (8-bit digits: the histograms live on the stack).
+const LSD_RADIX: usize = 256;
+
+/// The first (parallel) split aims at buckets of about this many pairs, so that each bucket's
+/// task runs in the core's own cache.
+const TOP_BUCKET_TARGET: usize = 1 << 12;
+
+/// A key the radix sort can order: an unsigned integer of `BITS` bits.
 pub trait RadixKey: Copy + Send + Sync + Ord + Default + 'static {
-    /// Number of 8-bit digits (passes at most).
+    /// Bits of the key.
+    const BITS: u32;
+    /// Number of 8-bit digits (the byte positions [`SortReport`] counts).
     const BYTES: usize;
-    /// Digit `pass` (0 = least significant byte).
-    fn digit(self, pass: usize) -> usize;
-    /// The key widened to 64 bits (for prefix comparisons in the hierarchy builders).
+    /// The key widened to 64 bits (digits, masks, and prefix comparisons in the hierarchy
+    /// builders).
     fn widen(self) -> u64;
 }
 
 impl RadixKey for u64 {
+    const BITS: u32 = 64;
     const BYTES: usize = 8;
-    #[inline(always)]
-    fn digit(self, pass: usize) -> usize {
-        ((self >> (8 * pass)) & 0xff) as usize
-    }
     #[inline(always)]
     fn widen(self) -> u64 {
         self
@@ -34,11 +57,8 @@ impl RadixKey for u64 {
 }
 
 impl RadixKey for u32 {
+    const BITS: u32 = 32;
     const BYTES: usize = 4;
-    #[inline(always)]
-    fn digit(self, pass: usize) -> usize {
-        ((self >> (8 * pass)) & 0xff) as usize
-    }
     #[inline(always)]
     fn widen(self) -> u64 {
         self as u64
@@ -61,81 +81,244 @@ pub enum SortError {
     TooMany(usize),
 }
 
-/// What a sort did.
+/// What a sort found and did.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub struct SortReport {
-    /// Scatter passes performed.
+    /// Byte positions of the key (bits `8i..8i+8`) in which some keys differ: the bytes the sort
+    /// orders by.
     pub passes: u32,
-    /// Passes skipped because their digit was constant across all keys.
+    /// Byte positions in which all keys agree: never looked at after the first read.
     pub skipped: u32,
+    /// Bits from the lowest to the highest bit in which some keys differ (0 when all are equal).
+    pub varying_bits: u32,
+    /// Width of the first (parallel) split's digit in bits (0 when there was none).
+    pub top_digit_bits: u32,
+    /// Most times any pair was moved: parallel splits plus in-cache LSD passes on its way
+    /// (insertion sorts and copies not counted).
+    pub depth: u32,
 }
 
-/// Histogram of one chunk for every digit position.
-type Hist = [[u32; RADIX]; 8];
-
-/// Count every digit of every key of one chunk.
-fn count_all<K: RadixKey>(keys: &[K]) -> Box<Hist> {
-    let mut h: Box<Hist> = Box::new([[0u32; RADIX]; 8]);
+/// `(bits set in some key, bits set in every key)` of a slice.
+fn or_and<K: RadixKey>(keys: &[K]) -> (u64, u64) {
+    let mut o = 0u64;
+    let mut a = !0u64;
     for &k in keys {
-        for (p, row) in h.iter_mut().enumerate().take(K::BYTES) {
-            row[k.digit(p)] += 1;
+        let w = k.widen();
+        o |= w;
+        a &= w;
+    }
+    (o, a)
+}
+
+/// Bits in which some keys of the slice differ (in parallel when `par`).
+fn varying_mask<K: RadixKey>(keys: &[K], par: bool) -> u64 {
+    let (o, a) = if par {
+        keys.par_chunks(PARALLEL_MIN)
+            .map(or_and)
+            .reduce(|| (0, !0), |x, y| (x.0 | y.0, x.1 & y.1))
+    } else {
+        or_and(keys)
+    };
+    o & !a
+}
+
+/// Digit of `k` at `shift`, `mask` = buckets − 1.
+#[inline(always)]
+fn digit<K: RadixKey>(k: K, shift: u32, mask: usize) -> usize {
+    (k.widen() >> shift) as usize & mask
+}
+
+/// Stable insertion sort of a short range.
+fn insertion_sort<K: RadixKey>(k: &mut [K], v: &mut [u32]) {
+    for i in 1..k.len() {
+        let (key, val) = (k[i], v[i]);
+        let mut j = i;
+        while j > 0 && k[j - 1] > key {
+            k[j] = k[j - 1];
+            v[j] = v[j - 1];
+            j -= 1;
+        }
+        k[j] = key;
+        v[j] = val;
+    }
+}
+
+/// Width of the split of a range of `m ≥ PARALLEL_MIN` pairs whose varying bits are `lo..hi`:
+/// buckets of about [`TOP_BUCKET_TARGET`] pairs (in cache), at most [`TOP_BITS_MAX`] bits.
+fn split_width(m: usize, hi: u32, lo: u32) -> u32 {
+    (usize::BITS - (m / TOP_BUCKET_TARGET).leading_zeros())
+        .clamp(1, TOP_BITS_MAX)
+        .min(hi - lo)
+}
+
+/// Sorts `(dk, dv)`, using `(ok, ov)` (same length) as the other buffer; the result ends in the
+/// data buffer when `want_in_data`, else in the other one. `mask` is the range's varying bits
+/// when known. Ranges of at least [`PARALLEL_MIN`] pairs are split by the pool and their buckets
+/// sorted as tasks; smaller ones by [`lsd`] (or an insertion sort) on the calling thread. That
+/// choice depends on the size only, so one thread does the same work as many. Returns the depth
+/// (splits and passes on the longest way).
+fn sort_range<K: RadixKey>(
+    dk: &mut [K],
+    dv: &mut [u32],
+    ok: &mut [K],
+    ov: &mut [u32],
+    want_in_data: bool,
+    mask: Option<u64>,
+) -> u32 {
+    let m = dk.len();
+    if m <= INSERTION_MAX {
+        insertion_sort(dk, dv);
+        if !want_in_data {
+            ok.copy_from_slice(dk);
+            ov.copy_from_slice(dv);
+        }
+        return 0;
+    }
+    let par = m >= PARALLEL_MIN;
+    let mask = mask.unwrap_or_else(|| varying_mask(dk, par && rayon::current_num_threads() > 1));
+    if mask == 0 {
+        // All keys equal: already in stable order.
+        if !want_in_data {
+            ok.copy_from_slice(dk);
+            ov.copy_from_slice(dv);
+        }
+        return 0;
+    }
+    if !par {
+        return lsd(dk, dv, ok, ov, want_in_data, mask);
+    }
+    let hi = 64 - mask.leading_zeros();
+    let lo = mask.trailing_zeros();
+    let w = split_width(m, hi, lo);
+    let shift = hi - w;
+    // The split moves the pairs into the other buffer; the buckets sort from there.
+    let starts = split_parallel(dk, dv, ok, ov, shift, w);
+    // After a split on the lowest varying bits every bucket holds equal keys.
+    let last = shift <= lo;
+    let mut buckets = Vec::with_capacity(1 << w);
+    {
+        let (mut kd, mut vd, mut ks, mut vs) = (dk, dv, ok, ov);
+        for b in 0..1usize << w {
+            let len = starts[b + 1] - starts[b];
+            let (kd0, kd1) = std::mem::take(&mut kd).split_at_mut(len);
+            let (vd0, vd1) = std::mem::take(&mut vd).split_at_mut(len);
+            let (ks0, ks1) = std::mem::take(&mut ks).split_at_mut(len);
+            let (vs0, vs1) = std::mem::take(&mut vs).split_at_mut(len);
+            (kd, vd, ks, vs) = (kd1, vd1, ks1, vs1);
+            if len > 0 {
+                buckets.push((ks0, vs0, kd0, vd0));
+            }
         }
     }
-    h
+    let depth = buckets
+        .into_par_iter()
+        .with_max_len(1)
+        .map(|(ks, vs, kd, vd)| {
+            if last || ks.len() < 2 {
+                if want_in_data {
+                    kd.copy_from_slice(ks);
+                    vd.copy_from_slice(vs);
+                }
+                0
+            } else {
+                sort_range(ks, vs, kd, vd, !want_in_data, None)
+            }
+        })
+        .max();
+    depth.unwrap_or(0) + 1
 }
 
-/// Count one digit of one chunk.
-fn count_one<K: RadixKey>(keys: &[K], pass: usize) -> [u32; RADIX] {
-    let mut h = [0u32; RADIX];
-    for &k in keys {
-        h[k.digit(pass)] += 1;
-    }
-    h
-}
-
-/// Scatter one chunk to its destination slots: `dst` holds, in chunk order, disjoint mutable
-/// sub-slices per bucket (only the chunk's own slots of each bucket).
-fn scatter_chunk<K: RadixKey>(
-    keys: &[K],
-    vals: &[u32],
-    pass: usize,
-    kdst: [&mut [K]; RADIX],
-    vdst: [&mut [u32]; RADIX],
-) {
-    // Per-bucket write cursors. The caller sized bucket `d`'s sub-slices to exactly this chunk's
-    // count of digit `d` in this pass, so each cursor ends exactly at its slice's end.
-    let mut kp: [*mut K; RADIX] = kdst.map(|s| s.as_mut_ptr_range().start);
-    let mut vp: [*mut u32; RADIX] = vdst.map(|s| s.as_mut_ptr_range().start);
-    for (&k, &v) in keys.iter().zip(vals) {
-        let d = k.digit(pass);
-        // SAFETY: `kp[d]`/`vp[d]` point into the chunk's own, exclusively borrowed sub-slices
-        // of bucket `d`, which hold one slot per key of this chunk with digit `d` (histogram of
-        // the same chunk and pass); each key advances its cursor once, so no write leaves them.
-        unsafe {
-            kp[d].write(k);
-            vp[d].write(v);
-            kp[d] = kp[d].add(1);
-            vp[d] = vp[d].add(1);
+/// Least significant digit first over the varying bits `mask` of a cache-sized range: 8-bit
+/// digits from the lowest varying bit up, the histograms of all digits from one counting pass,
+/// digits that are the same in every key skipped. Same contract as [`sort_range`]; returns the
+/// passes done.
+fn lsd<K: RadixKey>(
+    dk: &mut [K],
+    dv: &mut [u32],
+    ok: &mut [K],
+    ov: &mut [u32],
+    want_in_data: bool,
+    mask: u64,
+) -> u32 {
+    let m = dk.len();
+    let hi = 64 - mask.leading_zeros();
+    let lo = mask.trailing_zeros();
+    let digits = (hi - lo).div_ceil(8) as usize;
+    let mut counts = [[0u32; LSD_RADIX]; 8];
+    for &k in dk.iter() {
+        let w = k.widen() >> lo;
+        for (i, c) in counts.iter_mut().enumerate().take(digits) {
+            c[(w >> (8 * i)) as usize & 0xff] += 1;
         }
     }
+    let mut in_data = true;
+    let mut passes = 0;
+    for (i, c) in counts.iter().enumerate().take(digits) {
+        if c.contains(&(m as u32)) {
+            continue;
+        }
+        let shift = lo + 8 * i as u32;
+        let mut cursor = [0u32; LSD_RADIX];
+        let mut sum = 0u32;
+        for (cur, &n) in cursor.iter_mut().zip(c) {
+            *cur = sum;
+            sum += n;
+        }
+        let (sk, sv, tk, tv): (&[K], &[u32], &mut [K], &mut [u32]) = if in_data {
+            (dk, dv, ok, ov)
+        } else {
+            (ok, ov, dk, dv)
+        };
+        let (tkp, tvp) = (tk.as_mut_ptr(), tv.as_mut_ptr());
+        for (&k, &v) in sk.iter().zip(sv) {
+            let d = digit(k, shift, 0xff);
+            let p = cursor[d] as usize;
+            // SAFETY: `cursor` holds the exclusive prefix sums of this pass's histogram of the
+            // same keys (`tk`, `tv` have `m` slots), so digit `d`'s cursor runs through
+            // `start(d) .. start(d) + count(d) ≤ m`, each slot written once.
+            unsafe {
+                tkp.add(p).write(k);
+                tvp.add(p).write(v);
+            }
+            cursor[d] += 1;
+        }
+        in_data = !in_data;
+        passes += 1;
+    }
+    if in_data != want_in_data {
+        if want_in_data {
+            dk.copy_from_slice(ok);
+            dv.copy_from_slice(ov);
+        } else {
+            ok.copy_from_slice(dk);
+            ov.copy_from_slice(dv);
+        }
+    }
+    passes
 }
 
 /// Sort `keys` ascending and apply the same permutation to `vals`, stably (equal keys keep the
 /// order of their values' positions). Runs on the current rayon pool; the result does not
 /// depend on the number of threads.
 pub fn sort_pairs<K: RadixKey>(
-    keys: &mut Vec<K>,
-    vals: &mut Vec<u32>,
+    keys: &mut [K],
+    vals: &mut [u32],
 ) -> Result<SortReport, SortError> {
     sort_pairs_with(keys, vals, &mut Vec::new(), &mut Vec::new())
 }
 
+/// Fill `v` with `n` default values, reusing its allocation (its pages are then already
+/// mapped) when it is large enough.
+fn scratch<T: Copy + Default + Send + Sync>(v: &mut Vec<T>, n: usize) {
+    crate::buffers::refill(v, n, T::default());
+}
+
 /// [`sort_pairs`] with caller-owned scratch buffers (their contents are overwritten; a build
 /// arena passes the same ones again so that their pages are already mapped). On return the
-/// scratch holds the other ping-pong buffers, of the input's length.
+/// scratch buffers have the input's length.
 pub fn sort_pairs_with<K: RadixKey>(
-    keys: &mut Vec<K>,
-    vals: &mut Vec<u32>,
+    keys: &mut [K],
+    vals: &mut [u32],
     kscratch: &mut Vec<K>,
     vscratch: &mut Vec<u32>,
 ) -> Result<SortReport, SortError> {
@@ -149,90 +332,124 @@ pub fn sort_pairs_with<K: RadixKey>(
     if n > u32::MAX as usize {
         return Err(SortError::TooMany(n));
     }
-    let mut report = SortReport::default();
+    scratch(kscratch, n);
+    scratch(vscratch, n);
+    let mut report = SortReport {
+        skipped: K::BYTES as u32,
+        ..SortReport::default()
+    };
     if n < 2 {
-        report.skipped = K::BYTES as u32;
         return Ok(report);
     }
-    let chunks = if n < SERIAL_BELOW {
-        1
-    } else {
-        rayon::current_num_threads().clamp(1, n / 4096)
-    };
-    let chunk_len = n.div_ceil(chunks);
-
-    // One counting pass for all digits: per-chunk histograms of the first executed pass, and the
-    // (permutation-invariant) totals that tell which passes are constant.
-    let first_hists: Vec<Box<Hist>> = keys.par_chunks(chunk_len).map(count_all).collect();
-    let mut totals = [[0usize; RADIX]; 8];
-    for h in &first_hists {
-        for p in 0..K::BYTES {
-            for b in 0..RADIX {
-                totals[p][b] += h[p][b] as usize;
-            }
-        }
+    let mask = varying_mask(keys, n >= PARALLEL_MIN && rayon::current_num_threads() > 1);
+    let varying_bytes = (0..K::BYTES)
+        .filter(|&i| (mask >> (8 * i)) & 0xff != 0)
+        .count() as u32;
+    report.passes = varying_bytes;
+    report.skipped = K::BYTES as u32 - varying_bytes;
+    if mask == 0 {
+        return Ok(report);
     }
-
-    let kbuf: &mut Vec<K> = kscratch;
-    let vbuf: &mut Vec<u32> = vscratch;
-    crate::buffers::refill(kbuf, n, K::default());
-    crate::buffers::refill(vbuf, n, 0);
-    let mut first_done = false;
-    for pass in 0..K::BYTES {
-        if totals[pass].contains(&n) {
-            report.skipped += 1;
-            continue;
-        }
-        let hists: Vec<[u32; RADIX]> = if chunks == 1 {
-            // One chunk: its histogram is the (permutation-invariant) total.
-            vec![core::array::from_fn(|b| totals[pass][b] as u32)]
-        } else if !first_done {
-            first_hists.iter().map(|h| h[pass]).collect()
-        } else {
-            keys.par_chunks(chunk_len)
-                .map(|c| count_one(c, pass))
-                .collect()
-        };
-        first_done = true;
-
-        // Carve the destination into per-(bucket, chunk) sub-slices, bucket-major, so that each
-        // chunk owns exactly the slots its elements go to: no unsafe and no shared writes.
-        let mut per_chunk_k: Vec<Vec<&mut [K]>> = (0..hists.len()).map(|_| Vec::new()).collect();
-        let mut per_chunk_v: Vec<Vec<&mut [u32]>> = (0..hists.len()).map(|_| Vec::new()).collect();
-        {
-            let mut krest: &mut [K] = kbuf;
-            let mut vrest: &mut [u32] = vbuf;
-            for b in 0..RADIX {
-                for (c, h) in hists.iter().enumerate() {
-                    let len = h[b] as usize;
-                    let (kh, kt) = std::mem::take(&mut krest).split_at_mut(len);
-                    let (vh, vt) = std::mem::take(&mut vrest).split_at_mut(len);
-                    per_chunk_k[c].push(kh);
-                    per_chunk_v[c].push(vh);
-                    krest = kt;
-                    vrest = vt;
-                }
-            }
-        }
-        keys.par_chunks(chunk_len)
-            .zip(vals.par_chunks(chunk_len))
-            .zip(per_chunk_k.into_par_iter().zip(per_chunk_v.into_par_iter()))
-            .for_each(|((kc, vc), (kd, vd))| {
-                let kd: [&mut [K]; RADIX] = match kd.try_into() {
-                    Ok(a) => a,
-                    Err(_) => unreachable!("one sub-slice per bucket"),
-                };
-                let vd: [&mut [u32]; RADIX] = match vd.try_into() {
-                    Ok(a) => a,
-                    Err(_) => unreachable!("one sub-slice per bucket"),
-                };
-                scatter_chunk(kc, vc, pass, kd, vd);
-            });
-        std::mem::swap(keys, kbuf);
-        std::mem::swap(vals, vbuf);
-        report.passes += 1;
+    let hi = 64 - mask.leading_zeros();
+    let lo = mask.trailing_zeros();
+    report.varying_bits = hi - lo;
+    if n >= PARALLEL_MIN {
+        report.top_digit_bits = split_width(n, hi, lo);
     }
+    report.depth = sort_range(keys, vals, kscratch, vscratch, true, Some(mask));
     Ok(report)
+}
+
+/// One chunk's destination slots of every bucket, keys and values.
+type ChunkSlots<'a, K> = (Vec<&'a mut [K]>, Vec<&'a mut [u32]>);
+
+/// The first split, in parallel: every thread counts the digit in its own contiguous chunk,
+/// then scatters the chunk into its own slots of every bucket. Returns the bucket starts (and
+/// `n` after the last bucket).
+fn split_parallel<K: RadixKey>(
+    keys: &[K],
+    vals: &[u32],
+    kout: &mut [K],
+    vout: &mut [u32],
+    shift: u32,
+    w: u32,
+) -> Vec<usize> {
+    let n = keys.len();
+    let threads = rayon::current_num_threads();
+    let radix = 1usize << w;
+    let mask = radix - 1;
+    let chunks = threads.clamp(1, n.div_ceil(PARALLEL_MIN / 4).max(1));
+    let chunk_len = n.div_ceil(chunks);
+    let hists: Vec<Vec<u32>> = keys
+        .par_chunks(chunk_len)
+        .map(|c| {
+            let mut h = vec![0u32; radix];
+            for &k in c {
+                h[digit(k, shift, mask)] += 1;
+            }
+            h
+        })
+        .collect();
+    let mut starts = Vec::with_capacity(radix + 1);
+    let mut sum = 0usize;
+    for b in 0..radix {
+        starts.push(sum);
+        sum += hists.iter().map(|h| h[b] as usize).sum::<usize>();
+    }
+    starts.push(sum);
+    // Carve the destination into per-(bucket, chunk) sub-slices, bucket-major, so that each
+    // chunk owns exactly the slots its pairs go to.
+    let mut per_chunk: Vec<ChunkSlots<'_, K>> = (0..hists.len())
+        .map(|_| (Vec::with_capacity(radix), Vec::with_capacity(radix)))
+        .collect();
+    {
+        let (mut krest, mut vrest): (&mut [K], &mut [u32]) = (kout, vout);
+        for b in 0..radix {
+            for (c, h) in hists.iter().enumerate() {
+                let len = h[b] as usize;
+                let (kh, kt) = std::mem::take(&mut krest).split_at_mut(len);
+                let (vh, vt) = std::mem::take(&mut vrest).split_at_mut(len);
+                per_chunk[c].0.push(kh);
+                per_chunk[c].1.push(vh);
+                (krest, vrest) = (kt, vt);
+            }
+        }
+    }
+    keys.par_chunks(chunk_len)
+        .zip(vals.par_chunks(chunk_len))
+        .zip(per_chunk.into_par_iter())
+        .for_each(|((kc, vc), (kd, vd))| scatter_chunk(kc, vc, kd, vd, shift, w));
+    starts
+}
+
+/// Scatter one chunk into its own slots of every bucket: `kd[d]`, `vd[d]` hold exactly the
+/// chunk's count of digit `d`, in bucket order.
+fn scatter_chunk<K: RadixKey>(
+    kc: &[K],
+    vc: &[u32],
+    kd: Vec<&mut [K]>,
+    vd: Vec<&mut [u32]>,
+    shift: u32,
+    w: u32,
+) {
+    let mask = (1usize << w) - 1;
+    // Write cursors into the chunk's own sub-slice of every bucket.
+    let mut kp: Vec<*mut K> = kd.into_iter().map(|s| s.as_mut_ptr()).collect();
+    let mut vp: Vec<*mut u32> = vd.into_iter().map(|s| s.as_mut_ptr()).collect();
+    for (&k, &v) in kc.iter().zip(vc) {
+        let d = digit(k, shift, mask);
+        // SAFETY: `d < radix` (masked), the cursor vectors have `radix` entries.
+        // `kp[d]`/`vp[d]` start at this chunk's own, exclusively borrowed sub-slices of
+        // bucket `d`, sized to this chunk's count of digit `d` (its histogram above);
+        // each key advances its cursor once, so every write stays inside them.
+        unsafe {
+            let (pk, pv) = (kp.get_unchecked_mut(d), vp.get_unchecked_mut(d));
+            pk.write(k);
+            pv.write(v);
+            *pk = pk.add(1);
+            *pv = pv.add(1);
+        }
+    }
 }
 
 #[cfg(test)]
@@ -246,23 +463,86 @@ mod tests {
         *s >> 11
     }
 
+    fn check<K: RadixKey + std::fmt::Debug>(keys: Vec<K>, threads: usize) -> SortReport {
+        let mut want: Vec<(K, u32)> = keys.iter().copied().zip(0..).collect();
+        want.sort_by_key(|p| p.0);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        let n = keys.len();
+        let (mut k, mut v) = (keys, (0..n as u32).collect::<Vec<_>>());
+        let r = pool.install(|| sort_pairs(&mut k, &mut v)).unwrap();
+        let got: Vec<(K, u32)> = k.into_iter().zip(v).collect();
+        assert_eq!(got, want, "n = {n}, threads = {threads}");
+        r
+    }
+
     #[test]
     fn matches_std_stable_sort() {
         let mut s = 7u64;
-        for &n in &[0usize, 1, 2, 100, 5000, 40_000] {
+        for &n in &[0usize, 1, 2, 100, 5000, 40_000, 200_000] {
             let keys: Vec<u64> = (0..n)
                 .map(|_| lcg(&mut s) & 0x00ff_00f0_0000_ffff)
                 .collect();
-            let mut want: Vec<(u64, u32)> = keys.iter().copied().zip(0..).collect();
-            want.sort_by_key(|p| p.0);
-            let (mut k, mut v) = (keys.clone(), (0..n as u32).collect::<Vec<_>>());
-            let r = sort_pairs(&mut k, &mut v).unwrap();
-            let got: Vec<(u64, u32)> = k.into_iter().zip(v).collect();
-            assert_eq!(got, want);
-            if n > 2 {
-                assert_eq!(r.passes, 4, "only bytes 0, 1, 4 and 6 vary");
-                assert_eq!(r.skipped, 4);
+            for threads in [1, 2, 3] {
+                let r = check(keys.clone(), threads);
+                if n > 2 {
+                    assert_eq!((r.passes, r.skipped), (4, 4), "bytes 0, 1, 4 and 6 vary");
+                    assert_eq!(
+                        r.varying_bits, 53,
+                        "bits 0 to 52 (the generator gives 53 bits)"
+                    );
+                }
             }
+        }
+    }
+
+    #[test]
+    fn edge_cases_all_thread_counts() {
+        for threads in [1, 2, 3] {
+            // Empty, one, all equal (small and large, parallel path), two values.
+            assert_eq!(check(Vec::<u64>::new(), threads).passes, 0);
+            assert_eq!(check(vec![9u64], threads).passes, 0);
+            for n in [2usize, 33, 1000, 300_000] {
+                let r = check(vec![0xdead_beef_u64; n], threads);
+                assert_eq!((r.passes, r.skipped, r.varying_bits), (0, 8, 0));
+                check((0..n as u64).map(|i| (i * 7919) % 2).collect(), threads);
+                check((0..n as u32).map(|i| ((i % 3) << 31) >> 1).collect(), threads);
+            }
+            // Only the lowest bits used; only the highest bit; descending; many duplicates.
+            let n = 250_000;
+            let r = check(
+                (0..n as u64).map(|i| (i * 2_654_435_761) & 0x3f).collect(),
+                threads,
+            );
+            assert_eq!((r.varying_bits, r.passes), (6, 1));
+            let r = check((0..n as u64).map(|i| (i & 1) << 63).collect(), threads);
+            assert_eq!((r.varying_bits, r.top_digit_bits, r.depth), (1, 1, 1));
+            check((0..n as u64).rev().collect(), threads);
+            check((0..n as u64).map(|i| (i * 31) % 977).collect(), threads);
+            let mut s = 5u64;
+            check((0..n).map(|_| lcg(&mut s) as u32).collect(), threads);
+            check(
+                (0..n)
+                    .map(|_| lcg(&mut s) << 11 | lcg(&mut s) & 0x7ff)
+                    .collect::<Vec<u64>>(),
+                threads,
+            );
+            // One huge bucket (90% of the keys share their top 20 bits) next to a sparse rest.
+            check(
+                (0..n)
+                    .map(|i| {
+                        let x = lcg(&mut s);
+                        if i % 10 == 0 {
+                            x << 11
+                        } else {
+                            0xabcde << 44 | x & 0xfff_ffff
+                        }
+                    })
+                    .collect::<Vec<u64>>(),
+                threads,
+            );
         }
     }
 

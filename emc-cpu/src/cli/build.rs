@@ -6,7 +6,7 @@ use anyhow::{bail, Context};
 use emc_core::LayoutSpec;
 
 use crate::build::{
-    build_scene_in, BuildArena, BuildOptions, BuildOutput, BuildReport, Builder, Phase,
+    build_scene_in, BuildArena, BuildOptions, BuildOutput, BuildReport, Builder, Phase, PhaseTime,
 };
 use crate::bvh::refit::CollapseParams;
 use crate::scene::{load_with, SceneOptions};
@@ -42,6 +42,73 @@ pub struct BuildArgs {
     /// Skip the structural check of the finished BVH.
     #[arg(long)]
     pub no_validate: bool,
+    /// Also run the same builds on a pool of this many threads first (same repeat count, warm
+    /// or cold alike) and print each phase's CPU time relative to it, e.g. `--vs-threads 1`
+    /// with `--threads 2` for the parallel CPU overhead.
+    #[arg(long)]
+    pub vs_threads: Option<usize>,
+}
+
+/// The builds of one thread count: the first build's report, the median report (by total CPU
+/// over the warm builds, or over all when cold or single) and the last build's output.
+struct Series {
+    first: BuildReport,
+    median: BuildReport,
+    count: usize,
+    last: BuildOutput,
+}
+
+/// Run `repeat` builds with `opts` (fresh buffers each when `cold`, else the previous build's).
+fn series(
+    scene: &crate::scene::Scene,
+    opts: &BuildOptions,
+    repeat: usize,
+    cold: bool,
+) -> anyhow::Result<Series> {
+    let mut reports: Vec<BuildReport> = Vec::with_capacity(repeat);
+    let mut arena = BuildArena::new();
+    let mut last: Option<BuildOutput> = None;
+    for _ in 0..repeat {
+        if cold {
+            drop(last.take());
+            arena = BuildArena::new();
+        } else if let Some(prev) = last.take() {
+            arena.recycle(prev);
+        }
+        let out = build_scene_in(scene, opts, &mut arena)?;
+        reports.push(out.report.clone());
+        last = Some(out);
+    }
+    let Some(last) = last else {
+        bail!("no build ran");
+    };
+    let first = reports[0].clone();
+    // Warm runs are those after the first (unless cold); the median is taken over them.
+    let mut pool: Vec<BuildReport> = if cold || reports.len() == 1 {
+        reports
+    } else {
+        reports.split_off(1)
+    };
+    let count = pool.len();
+    pool.sort_by(|a, b| a.total().cpu_ms.total_cmp(&b.total().cpu_ms));
+    let median = pool.swap_remove(count / 2);
+    Ok(Series {
+        first,
+        median,
+        count,
+        last,
+    })
+}
+
+/// A share as a percentage, or `-` on a one-thread pool (where it is 100% by definition).
+fn share(t: &PhaseTime, threads: usize) -> String {
+    if threads < 2 {
+        "-".to_string()
+    } else if t.cpu_ms > 0.0 {
+        format!("{:.1}%", 100.0 * t.serial_share())
+    } else {
+        String::new()
+    }
 }
 
 /// Run `emc build`.
@@ -54,6 +121,9 @@ pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
     }
     if args.repeat == 0 {
         bail!("--repeat must be at least 1");
+    }
+    if args.vs_threads == Some(0) {
+        bail!("--vs-threads must be at least 1");
     }
     let layout: LayoutSpec = args
         .layout
@@ -83,34 +153,23 @@ pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
             scene.dropped_nonfinite
         );
     }
+    let base = match args.vs_threads {
+        Some(t) => Some(series(
+            &scene,
+            &BuildOptions { threads: t, ..opts },
+            args.repeat,
+            args.cold,
+        )?),
+        None => None,
+    };
     // Every build gives the same BVH (builds are deterministic); the last one is validated.
-    let mut reports: Vec<BuildReport> = Vec::with_capacity(args.repeat);
-    let mut arena = BuildArena::new();
-    let mut last: Option<BuildOutput> = None;
-    for _ in 0..args.repeat {
-        if args.cold {
-            drop(last.take());
-            arena = BuildArena::new();
-        } else if let Some(prev) = last.take() {
-            arena.recycle(prev);
-        }
-        let out = build_scene_in(&scene, &opts, &mut arena)?;
-        reports.push(out.report.clone());
-        last = Some(out);
-    }
-    let Some(out) = last else {
-        bail!("no build ran");
-    };
-    let first = reports[0].clone();
-    // Warm runs are those after the first (unless --cold); the median is taken over them.
-    let mut pool: Vec<BuildReport> = if args.cold || reports.len() == 1 {
-        reports
-    } else {
-        reports.split_off(1)
-    };
-    let count = pool.len();
-    pool.sort_by(|a, b| a.total().cpu_ms.total_cmp(&b.total().cpu_ms));
-    let r = &pool[count / 2];
+    let Series {
+        first,
+        median,
+        count,
+        last: out,
+    } = series(&scene, &opts, args.repeat, args.cold)?;
+    let r = &median;
     let what = match (args.repeat, args.cold) {
         (1, _) => String::from(", one cold build (fresh buffers)"),
         (_, true) => format!(", median of {count} cold builds (fresh buffers each) by CPU time"),
@@ -126,10 +185,21 @@ pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
         r.layout.as_deref().unwrap_or("(none)"),
         r.threads,
     );
+    let vs_head = match &base {
+        Some(b) => format!(" {:>11}", format!("cpu/{}T cpu", b.median.threads)),
+        None => String::new(),
+    };
     println!(
-        "{:<10} {:>10} {:>10} {:>8}",
-        "phase", "wall ms", "cpu ms", "cpu/wall"
+        "{:<10} {:>10} {:>10} {:>8} {:>8}{vs_head}",
+        "phase", "wall ms", "cpu ms", "cpu/wall", "serial"
     );
+    let ratio = |a: f64, b: f64| {
+        if b > 0.0 {
+            format!(" {:>11.3}", a / b)
+        } else {
+            format!(" {:>11}", "")
+        }
+    };
     for p in Phase::ALL {
         let t = r.phase(p);
         let par = if t.wall_ms > 0.0 {
@@ -137,26 +207,66 @@ pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
         } else {
             0.0
         };
+        let vs = match &base {
+            Some(b) => ratio(t.cpu_ms, b.median.phase(p).cpu_ms),
+            None => String::new(),
+        };
         println!(
-            "{:<10} {:>10.2} {:>10.2} {:>8.2}",
+            "{:<10} {:>10.2} {:>10.2} {:>8.2} {:>8}{vs}",
             p.name(),
             t.wall_ms,
             t.cpu_ms,
-            par
+            par,
+            share(&t, r.threads)
         );
     }
     let t = r.total();
-    println!("{:<10} {:>10.2} {:>10.2}", "total", t.wall_ms, t.cpu_ms);
+    let vs = match &base {
+        Some(b) => ratio(t.cpu_ms, b.median.total().cpu_ms),
+        None => String::new(),
+    };
+    println!(
+        "{:<10} {:>10.2} {:>10.2} {:>8.2} {:>8}{vs}",
+        "total",
+        t.wall_ms,
+        t.cpu_ms,
+        if t.wall_ms > 0.0 {
+            t.cpu_ms / t.wall_ms
+        } else {
+            0.0
+        },
+        share(&t, r.threads)
+    );
+    if r.threads > 1 {
+        println!(
+            "serial: share of a phase's thread-CPU time run on one thread while the others did \
+             none of its work, from per-thread CPU times c_i: (T*max c_i - sum c_i) / ((T-1) * \
+             sum c_i) (exact for T = 2: (max - min) / sum; load imbalance counts as serial)"
+        );
+    }
+    if let Some(b) = &base {
+        println!(
+            "baseline: {} threads, {} build(s) in this run; total {:.2} ms CPU, {:.2} ms wall, \
+             {:.2} Mprims per thread-CPU-second",
+            b.median.threads,
+            b.count,
+            b.median.total().cpu_ms,
+            b.median.total().wall_ms,
+            b.median.mprims_per_cpu_s()
+        );
+    }
     if args.repeat > 1 && !args.cold {
         let cpu: Vec<String> = Phase::ALL
             .iter()
             .map(|&p| format!("{} {:.2}", p.name(), first.phase(p).cpu_ms))
             .collect();
         println!(
-            "first (cold) build: cpu ms [{}] total {:.2}, {:.2} Mprims per thread-CPU-second",
+            "first (cold) build: cpu ms [{}] total {:.2}, {:.2} Mprims per thread-CPU-second, \
+             {:.2} ms wall",
             cpu.join(", "),
             first.total().cpu_ms,
-            first.mprims_per_cpu_s()
+            first.mprims_per_cpu_s(),
+            first.total().wall_ms
         );
     }
     println!(
@@ -166,8 +276,13 @@ pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
     );
     if r.sort.passes + r.sort.skipped > 0 {
         println!(
-            "sort: {} passes, {} skipped (constant digit)",
-            r.sort.passes, r.sort.skipped
+            "sort: {} varying key bits ({} of {} bytes constant, never sorted on), first split \
+             {} bits, at most {} moves per pair",
+            r.sort.varying_bits,
+            r.sort.skipped,
+            r.sort.passes + r.sort.skipped,
+            r.sort.top_digit_bits,
+            r.sort.depth
         );
     }
     println!(
