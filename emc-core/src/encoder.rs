@@ -107,6 +107,7 @@ impl Encoder {
                 expand: ExpandPath::Scalar(expander.backend()),
                 quantize_reason: "no AVX2 on this CPU",
                 size: None,
+                wide: false,
             },
             quant,
             layout,
@@ -141,6 +142,7 @@ impl Encoder {
                     expand: ExpandPath::Scalar(self.expander.backend()),
                     quantize_reason: why,
                     size: None,
+                    wide: false,
                 };
                 Ok(())
             }
@@ -194,6 +196,7 @@ impl Encoder {
                 }
             },
             quantize_reason: why,
+            wide: self.expander.backend() == Backend::Pdep && k.wide_pdep(),
         };
     }
 

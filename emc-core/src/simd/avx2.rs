@@ -22,7 +22,7 @@ use crate::quantize::{Quantizer, MAX_THRESHOLD_BITS};
 use crate::simd::SizePath;
 
 /// No size channel.
-const SIZE_NONE: u8 = 0;
+pub(super) const SIZE_NONE: u8 = 0;
 /// Size by an `f32` estimate fixed up with two threshold comparisons (`S <= 8`).
 const SIZE_THRESH: u8 = 1;
 /// Size by the normative `f64` formula, sqrt transform.
@@ -56,6 +56,9 @@ pub(crate) struct Kernel {
     pub(super) s_scale: f64,
     /// The quantiser's thresholds `T(0..2^S)` (`T(0) = 0`), padded with +inf (never read).
     pub(super) thr: [f64; 256],
+    /// The CPU has AVX-512 F/DQ/VL ([`crate::cpu::has_avx512`]): without a size channel the
+    /// pdep expansion runs the AVX-512 pipeline too.
+    avx512: bool,
     /// The layout's channel masks when the batch expands by AVX-512 bit shuffles instead of
     /// the expander (only set after [`crate::cpu::has_avx512_bit_shuffle`] said yes).
     shuffle: Option<[u64; 4]>,
@@ -88,6 +91,7 @@ impl Kernel {
             diag: q.diagonal(),
             s_scale: crate::quantize::pow2(s),
             thr: [f64::INFINITY; 256],
+            avx512: crate::cpu::has_avx512(),
             shuffle: None,
         };
         if s == 0 {
@@ -125,6 +129,13 @@ impl Kernel {
     /// Whether the batch expands by AVX-512 bit shuffles.
     pub(crate) fn bit_shuffle(&self) -> bool {
         self.shuffle.is_some()
+    }
+
+    /// Whether a pdep expansion runs the eight-lane AVX-512 pipeline
+    /// ([`super::avx512::run_pdep`]), as [`Kernel::encode`] dispatches it.
+    pub(crate) fn wide_pdep(&self) -> bool {
+        self.shuffle.is_none()
+            && (self.size_mode == SIZE_LOOKUP512 || (self.size_mode == SIZE_NONE && self.avx512))
     }
 
     /// How the size channel is computed (`None` without one).
@@ -224,9 +235,13 @@ impl Kernel {
                     _ => 0,
                 }
             }
-            Expander::Pdep(p) if self.size_mode == SIZE_LOOKUP512 => {
+            Expander::Pdep(p)
+                if self.size_mode == SIZE_LOOKUP512
+                    || (self.size_mode == SIZE_NONE && self.avx512) =>
+            {
                 // SAFETY: the lookup mode is only set after `has_avx512()` said yes (see
-                // `Kernel::new`); BMI2 and `out` by the caller; `n4` groups lie in `boxes`.
+                // `Kernel::new`), `avx512` is that answer; BMI2 and `out` by the caller; `n4`
+                // groups lie in `boxes`.
                 unsafe { super::avx512::run_pdep::<W32>(self, p.masks(), src, n4, out) }
             }
             Expander::Pdep(_) => by_size!(self.size_mode, S =>

@@ -19,7 +19,7 @@
 
 use core::arch::x86_64::*;
 
-use super::avx2::{positions4, quantize4, Kernel, SIZE_LOOKUP512};
+use super::avx2::{positions4, quantize4, Kernel, SIZE_LOOKUP512, SIZE_NONE};
 
 /// Largest size-bit count the in-register lookup serves (`2^6 = 64` thresholds, eight `zmm`).
 pub(crate) const LOOKUP_BITS: u32 = 6;
@@ -146,7 +146,8 @@ fn gpr(mut v: u64) -> u64 {
     v
 }
 
-/// The dispatched `pdep` pipeline with the AVX-512 size step: eight boxes per step (a lone
+/// The dispatched `pdep` pipeline on an AVX-512 CPU, for layouts without a size channel or
+/// with the AVX-512 size step (`k.size_mode` none or lookup): eight boxes per step (a lone
 /// last group of four is quantised twice and written once). Returns `4·n4`.
 ///
 /// # Safety
@@ -162,15 +163,18 @@ pub(super) unsafe fn run_pdep<const W32: bool>(
 ) -> usize {
     // SAFETY: the caller's contract, passed on unchanged.
     unsafe {
-        if k.linear {
-            run_pdep_t::<true, W32>(k, m, src, n4, out)
+        if k.size_mode == SIZE_NONE {
+            run_pdep_t::<false, false, W32>(k, m, src, n4, out)
+        } else if k.linear {
+            run_pdep_t::<true, true, W32>(k, m, src, n4, out)
         } else {
-            run_pdep_t::<false, W32>(k, m, src, n4, out)
+            run_pdep_t::<true, false, W32>(k, m, src, n4, out)
         }
     }
 }
 
-/// [`run_pdep`] for one size transform (`LINEAR`).
+/// [`run_pdep`] with a size channel (`SIZED`, by the AVX-512 lookup mode) of one transform
+/// (`LINEAR`), or without one.
 ///
 /// The vector step computes only the estimate `k` of [`size8`]; its fix-up runs on the
 /// integer side, beside the `pdep`s, on the bit patterns of `d2` and `T(k)`: both are `+0`,
@@ -183,7 +187,7 @@ pub(super) unsafe fn run_pdep<const W32: bool>(
 /// As [`run_pdep`].
 #[target_feature(enable = "avx2,bmi2,avx512f,avx512dq,avx512vl")]
 #[allow(clippy::needless_range_loop)] // `l` picks the same lane from each channel's row
-unsafe fn run_pdep_t<const LINEAR: bool, const W32: bool>(
+unsafe fn run_pdep_t<const SIZED: bool, const LINEAR: bool, const W32: bool>(
     k: &Kernel,
     m: [u64; 4],
     src: *const f32,
@@ -216,7 +220,7 @@ unsafe fn run_pdep_t<const LINEAR: bool, const W32: bool>(
     let mut fields = [_mm512_setzero_pd(); 6];
     let mut d2 = _mm512_setzero_pd();
     for j in 0..steps + LAG {
-        if j >= 2 && j - 2 < steps {
+        if SIZED && j >= 2 && j - 2 < steps {
             let est = _mm512_cvtepi64_epi32(estimate8::<LINEAR>(&c, d2));
             // SAFETY: slot `(j − 2) % 4` of the ring; its size row holds eight u32.
             unsafe {
@@ -233,7 +237,9 @@ unsafe fn run_pdep_t<const LINEAR: bool, const W32: bool>(
                 for ch in 0..3 {
                     _mm256_storeu_si256(slot.q[ch].as_mut_ptr() as *mut __m256i, q[ch]);
                 }
-                _mm512_storeu_pd(slot.d2.as_mut_ptr() as *mut f64, d);
+                if SIZED {
+                    _mm512_storeu_pd(slot.d2.as_mut_ptr() as *mut f64, d);
+                }
             }
             d2 = d;
         }
@@ -264,15 +270,17 @@ unsafe fn run_pdep_t<const LINEAR: bool, const W32: bool>(
                 // `est` is in 0 ..= 2^S − 1 <= 63 (`estimate8`); the masks make the unchecked
                 // reads obviously in bounds. For `est = 0`, `bits(T(0)) = 0` and nothing is
                 // below it: `s` never wraps.
-                let est = gpr(slot.q[3][l] as u64) as usize & 63;
-                // SAFETY: `est < 64` and `tb` has 64 entries.
-                let below = gpr(slot.d2[l]) < unsafe { *tb.get_unchecked(est) };
-                let s = est.wrapping_sub(below as usize) & 63;
-                let code = _pdep_u64(slot.q[0][l] as u64, m[0])
+                let mut code = _pdep_u64(slot.q[0][l] as u64, m[0])
                     | _pdep_u64(slot.q[1][l] as u64, m[1])
-                    | _pdep_u64(slot.q[2][l] as u64, m[2])
+                    | _pdep_u64(slot.q[2][l] as u64, m[2]);
+                if SIZED {
+                    let est = gpr(slot.q[3][l] as u64) as usize & 63;
+                    // SAFETY: `est < 64` and `tb` has 64 entries.
+                    let below = gpr(slot.d2[l]) < unsafe { *tb.get_unchecked(est) };
+                    let s = est.wrapping_sub(below as usize) & 63;
                     // SAFETY: `s < 64` and `st` has 64 entries.
-                    | unsafe { *st.get_unchecked(s) };
+                    code |= unsafe { *st.get_unchecked(s) };
+                }
                 let i = 8 * e + l;
                 // SAFETY: `i < 4·n4`: step e holds codes 8e .. 8e + lanes.
                 unsafe {
@@ -288,7 +296,7 @@ unsafe fn run_pdep_t<const LINEAR: bool, const W32: bool>(
     4 * n4
 }
 
-/// The lane permutations of [`positions8`]: for each pair of box fields, the `vpermt2ps`
+/// The lane permutations of [`fields8`]: for each pair of box fields, the `vpermt2ps`
 /// indices and the lanes whose field lies in the third 64-byte block.
 #[derive(Clone, Copy)]
 struct Transpose8 {

@@ -21,7 +21,8 @@ pub(crate) mod avx512;
 pub enum QuantizePath {
     /// One box at a time with [`Quantizer::quantize`](crate::Quantizer::quantize).
     Scalar,
-    /// Four boxes at a time in AVX2 `f64` lanes (x86_64 with AVX2 only).
+    /// Four boxes at a time in AVX2 `f64` lanes (x86_64 with AVX2 only); eight at a time in
+    /// AVX-512 lanes where [`Pipeline::wide`] says so.
     Avx2,
 }
 
@@ -133,12 +134,17 @@ pub struct Pipeline {
     /// How the AVX2 quantise step computes the size channel (`None`: scalar quantise or no
     /// size channel).
     pub size: Option<SizePath>,
+    /// The AVX2 quantise step runs eight boxes at a time in AVX-512 `f64x8` lanes, in a
+    /// four-stage software pipeline: the pdep expansion on an AVX-512 CPU, for layouts
+    /// without a size channel or with [`SizePath::Avx512Lookup`] (same arithmetic).
+    pub wide: bool,
 }
 
 impl fmt::Display for Pipeline {
     /// For example `quantize: avx2 f64x4; expand: table (byte tables, scalar loads per lane)`.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.quantize {
+            QuantizePath::Avx2 if self.wide => write!(f, "quantize: avx-512 f64x8")?,
             QuantizePath::Avx2 => write!(f, "quantize: avx2 f64x4")?,
             QuantizePath::Scalar => write!(f, "quantize: scalar f64")?,
         }
