@@ -1,7 +1,7 @@
-//! AVX-512 size step of the batch pipeline (x86_64 only): the size channel of eight boxes at a
-//! time without a square root or a divide, bit for bit [`Quantizer::size_by_thresholds`]. The
-//! positions still come from the AVX2 step ([`super::avx2`]); entered only after
-//! [`crate::cpu::has_avx512`] said yes.
+//! AVX-512 parts of the batch pipeline (x86_64 only), entered only after
+//! [`crate::cpu::has_avx512`] said yes: the size channel of eight boxes at a time without a
+//! square root or a divide, bit for bit [`Quantizer::size_by_thresholds`], and the dispatched
+//! pdep pipeline ([`run_pdep`]) that quantises eight boxes per step in `f64x8` lanes.
 //!
 //! ```text
 //!   d2 (f64x8) ─► ρ = clamp(d2·(1/D²), 2^-600, 1) ─► g = rsqrt14(rsqrt14(ρ)) ≈ ρ^¼
@@ -12,8 +12,16 @@
 //!   q = k − [T(k) > d2]
 //! ```
 //!
-//! The dispatched pdep pipeline ([`run_pdep`]) keeps only the estimate in vector registers and
-//! makes the comparison on the integer side, on bit patterns, beside the `pdep`s.
+//! [`run_pdep`] keeps only the estimate in vector registers and makes the comparison on the
+//! integer side, on bit patterns, beside the `pdep`s; it runs as a four-stage software
+//! pipeline over steps of eight boxes (see there):
+//!
+//! ```text
+//!   step j:  A  load 3×64 B, vpermt2ps transpose, cvtps2pd  (boxes of step j)   → registers
+//!            B  positions, d2                                (step j − 1)       → ring slot
+//!            C  size estimate k                              (step j − 2)       → ring slot
+//!            D  per lane: 3 pdep | st[k − [d2 < T(k)]]       (step j − 3)       ← ring slot
+//! ```
 //!
 //! [`Quantizer::size_by_thresholds`]: crate::Quantizer::size_by_thresholds
 
@@ -136,7 +144,7 @@ pub(super) unsafe fn size4(k: &Kernel, d2: __m256d) -> __m128i {
 /// `v` unchanged, through an empty `asm!` that names it as one general-purpose register: the
 /// integer side of the pdep pipeline stays scalar (without it LLVM's SLP vectoriser turns the
 /// per-lane table reads and compares into `vpgather`s and moves the `pdep` results back into
-/// vector registers, measured 25% slower).
+/// vector registers: 3.1 against 1.9 ns/code for `emc64-var` in cache on Zen 4).
 #[inline(always)]
 fn gpr(mut v: u64) -> u64 {
     // SAFETY: the template is empty: no instruction runs, no memory or flag is touched.
