@@ -206,9 +206,10 @@ unsafe fn run_pdep_t<const SIZED: bool, const LINEAR: bool, const W32: bool>(
     let t = Transpose8::new();
     // The size channel (at most `LOOKUP_BITS` bits here) is deposited by a table load instead
     // of a fourth `pdep`: `st[v] = pdep(v, m[3])` for every 6-bit `v`, built once per batch.
-    let st: [u64; 64] = core::array::from_fn(|v| _pdep_u64(v as u64, m[3]));
+    // Both tables stay zero (unread) without a size channel.
+    let st: [u64; 64] = core::array::from_fn(|v| if SIZED { _pdep_u64(v as u64, m[3]) } else { 0 });
     // `tb[v] = bits(T(v))`; +inf past `2^S − 1` (never selected: `k <= 2^S − 1`).
-    let tb: [u64; 64] = core::array::from_fn(|v| k.thr[v].to_bits());
+    let tb: [u64; 64] = core::array::from_fn(|v| if SIZED { k.thr[v].to_bits() } else { 0 });
     // Software-pipelined in four stages over steps of eight boxes (groups 2e and 2e + 1),
     // so that no iteration holds one long dependency chain (a step's chain from its loads to
     // the size estimate is some 70 cycles long, more than the out-of-order window covers):
@@ -220,7 +221,8 @@ unsafe fn run_pdep_t<const SIZED: bool, const LINEAR: bool, const W32: bool>(
     // vector registers lane by lane (`vpextrd`, what LLVM made of a copied buffer) was the
     // bottleneck before. Zen 4, `emc64-var`, 16K boxes in cache: 2.91 ns/code with
     // extraction and the in-register lookup of `size8`, 2.48 with the ring, 2.39 with the
-    // estimate split off, 1.87 with all four stages.
+    // estimate split off, 1.87 with all four stages. Without a size channel stage C and the
+    // fix-up drop out (`morton63`: 1.87 ns/code on the AVX2 pipeline, 1.27 here).
     const LAG: usize = 3;
     let mut ring = [Lanes::default(); 4];
     let ring = ring.as_mut_ptr();
