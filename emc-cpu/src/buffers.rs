@@ -23,6 +23,20 @@ pub fn refill<T: Copy + Send + Sync>(v: &mut Vec<T>, n: usize, x: T) {
     }
 }
 
+/// Make `v` hold `n` elements whose values do not matter (the caller overwrites every one):
+/// a reused allocation keeps its old elements, so a warm build neither clears nor refills it
+/// (only a longer tail is written with `x`); a new one is filled with `x` in parallel (first
+/// touch, and its page faults, on every core of the current pool).
+pub fn resized<T: Copy + Send + Sync>(v: &mut Vec<T>, n: usize, x: T) {
+    if v.len() >= n {
+        v.truncate(n);
+    } else if v.capacity() >= n {
+        v.resize(n, x);
+    } else {
+        *v = from_fn(n, |_| x);
+    }
+}
+
 /// A vector of `n` values made by `f`, filled in parallel.
 pub fn from_fn<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
     let mut v: Vec<T> = Vec::with_capacity(n);

@@ -458,7 +458,7 @@ pub fn build_scene_in(
     }
     let mut out = std::mem::take(&mut arena.aabbs);
     let aabbs = timed.run(Phase::Aabb, || {
-        crate::buffers::refill(&mut out, n, Aabb::EMPTY);
+        crate::buffers::resized(&mut out, n, Aabb::EMPTY);
         crate::aabbs::triangle_aabbs(&scene.vertices, &scene.indices, &mut out);
         out
     });
@@ -519,7 +519,7 @@ fn build_timed(
     let (bvh, sort, headline) = if enc.layout().fits_u32() {
         let mut codes = std::mem::take(&mut arena.codes32);
         timed.run(Phase::Encode, || {
-            crate::buffers::refill(&mut codes, n, 0);
+            crate::buffers::resized(&mut codes, n, 0);
             crate::encode::encode_parallel_u32(&enc, ab, &mut codes)
         })?;
         let mut kbuf = std::mem::take(&mut arena.kbuf32);
@@ -529,7 +529,7 @@ fn build_timed(
     } else {
         let mut codes = std::mem::take(&mut arena.codes64);
         timed.run(Phase::Encode, || {
-            crate::buffers::refill(&mut codes, n, 0);
+            crate::buffers::resized(&mut codes, n, 0);
             crate::encode::encode_parallel(&enc, ab, &mut codes)
         })?;
         let mut kbuf = std::mem::take(&mut arena.kbuf64);

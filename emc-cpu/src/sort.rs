@@ -36,6 +36,9 @@ const LSD_RADIX: usize = 256;
 /// task runs in the core's own cache.
 const TOP_BUCKET_TARGET: usize = 1 << 12;
 
+/// The first split's buckets should average at least this many pairs.
+const BUCKET_MIN: usize = 1 << 9;
+
 /// A key the radix sort can order: an unsigned integer of `BITS` bits.
 pub trait RadixKey: Copy + Send + Sync + Ord + Default + 'static {
     /// Bits of the key.
@@ -143,12 +146,21 @@ fn insertion_sort<K: RadixKey>(k: &mut [K], v: &mut [u32]) {
     }
 }
 
-/// Width of the split of a range of `m ≥ PARALLEL_MIN` pairs whose varying bits are `lo..hi`:
-/// buckets of about [`TOP_BUCKET_TARGET`] pairs (in cache), at most [`TOP_BITS_MAX`] bits.
+/// Width of the split of a range of `m ≥ PARALLEL_MIN` pairs whose varying bits are `lo..hi`.
+/// Buckets should average at most [`TOP_BUCKET_TARGET`] pairs (in cache) and at least
+/// [`BUCKET_MIN`] (worth their histograms); within that, the narrowest digit that leaves the
+/// buckets the fewest 8-bit LSD passes (e.g. 64 varying bits: 8 bits, 7 passes left, rather than
+/// 7 bits and 8 passes), at most [`TOP_BITS_MAX`] bits.
 fn split_width(m: usize, hi: u32, lo: u32) -> u32 {
-    (usize::BITS - (m / TOP_BUCKET_TARGET).leading_zeros())
-        .clamp(1, TOP_BITS_MAX)
-        .min(hi - lo)
+    let span = hi - lo;
+    let log2 = |x: usize| usize::BITS - 1 - x.max(1).leading_zeros();
+    let narrow = (log2(m / TOP_BUCKET_TARGET) + 1).clamp(1, TOP_BITS_MAX);
+    let wide = log2(m / BUCKET_MIN).clamp(narrow, TOP_BITS_MAX);
+    let passes = |w: u32| (span - w).div_ceil(8);
+    (narrow..=wide)
+        .min_by_key(|&w| (passes(w.min(span)), w))
+        .unwrap_or(narrow)
+        .min(span)
 }
 
 /// Sorts `(dk, dv)`, using `(ok, ov)` (same length) as the other buffer; the result ends in the
@@ -307,10 +319,10 @@ pub fn sort_pairs<K: RadixKey>(
     sort_pairs_with(keys, vals, &mut Vec::new(), &mut Vec::new())
 }
 
-/// Fill `v` with `n` default values, reusing its allocation (its pages are then already
-/// mapped) when it is large enough.
+/// Give the scratch buffer `v` the length `n`, reusing its allocation and contents (its pages
+/// are then already mapped and nothing is cleared) when it is large enough.
 fn scratch<T: Copy + Default + Send + Sync>(v: &mut Vec<T>, n: usize) {
-    crate::buffers::refill(v, n, T::default());
+    crate::buffers::resized(v, n, T::default());
 }
 
 /// [`sort_pairs`] with caller-owned scratch buffers (their contents are overwritten; a build
