@@ -458,7 +458,7 @@ pub fn build_scene_in(
     }
     let mut out = std::mem::take(&mut arena.aabbs);
     let aabbs = timed.run(Phase::Aabb, || {
-        crate::buffers::resized(&mut out, n, Aabb::EMPTY);
+        crate::buffers::resized_par(&mut out, n, Aabb::EMPTY);
         crate::aabbs::triangle_aabbs(&scene.vertices, &scene.indices, &mut out);
         out
     });
