@@ -9,7 +9,7 @@ use core::mem::MaybeUninit;
 
 use crate::trace::intersect::{better, slab_test, triangle_test, Hit, PreRay, Ray};
 use crate::trace::wide::{
-    TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, EMPTY, LEAF, STACK_CAPACITY8, WIDTH, WIDTH8,
+    TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, LEAF, STACK_CAPACITY8, WIDTH, WIDTH8,
 };
 
 /// Relative slack of distance culling, 2^-12. A node is skipped only when its entry distance
@@ -550,6 +550,17 @@ impl Stack {
     }
 }
 
+/// Bit `i` set when child `i` of `node` is a leaf (or unused: never entered), from the flag
+/// bits of the child codes, without a branch per lane.
+#[inline(always)]
+fn leaf_mask<const W: usize>(node: &WideNodeN<W>) -> u32 {
+    let mut m = 0;
+    for (lane, &c) in node.child.iter().enumerate() {
+        m |= (c >> 31) << lane;
+    }
+    m
+}
+
 /// Push the entered lanes of `hits` but the nearest, farthest first, and return the nearest
 /// (visited next without a round trip through the stack).
 #[inline(always)]
@@ -558,6 +569,26 @@ fn push_ordered<const W: usize>(
     node: &WideNodeN<W>,
     (mask, dist): LaneHitsN<W>,
 ) -> Option<(u32, f32)> {
+    if mask == 0 {
+        return None;
+    }
+    let first = mask.trailing_zeros() as usize;
+    let rest = mask & (mask - 1);
+    if rest == 0 {
+        // One child (the common case): no sorting.
+        return Some((node.child[first], dist[first]));
+    }
+    if rest & (rest - 1) == 0 {
+        // Two children: one comparison (ties visit the lower lane first, as the sort below).
+        let second = rest.trailing_zeros() as usize;
+        let (a, b) = (
+            (node.child[first], dist[first]),
+            (node.child[second], dist[second]),
+        );
+        let (near, far) = if b.1 < a.1 { (b, a) } else { (a, b) };
+        stack.push(far);
+        return Some(near);
+    }
     let mut e = [(0u32, 0.0f32); W];
     let mut n = 0;
     let mut m = mask;
@@ -565,9 +596,6 @@ fn push_ordered<const W: usize>(
         let lane = m.trailing_zeros() as usize;
         m &= m - 1;
         let code = node.child[lane];
-        if code == EMPTY {
-            continue;
-        }
         // Insertion sort by descending distance (at most `W` entries).
         let mut j = n;
         while j > 0 && e[j - 1].1 < dist[lane] {
@@ -690,37 +718,43 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
             // Entered leaves are tested at once, nearest first, each only while its entry
             // distance is within the (shrinking) cull distance; inner children still entered
             // within it are then visited nearest first.
-            let mut leaves = [(0u32, 0.0f32); W];
-            let mut n = 0;
-            let mut m = mask;
-            let mut inner = mask;
-            while m != 0 {
-                let lane = m.trailing_zeros() as usize;
-                m &= m - 1;
-                let child = node.child[lane];
-                if child & LEAF != 0 {
-                    inner &= !(1 << lane);
-                    let mut j = n;
-                    while j > 0 && leaves[j - 1].1 > dist[lane] {
-                        leaves[j] = leaves[j - 1];
-                        j -= 1;
+            let lm = leaf_mask(node);
+            let leaves = mask & lm;
+            let mut inner = mask & !lm;
+            if leaves != 0 {
+                if leaves & (leaves - 1) == 0 {
+                    // One leaf: entered within `cull`, so tested.
+                    let lane = leaves.trailing_zeros() as usize;
+                    cull = leaf(node.child[lane], &mut best, &mut found, stats);
+                } else {
+                    let mut order = [(0u32, 0.0f32); W];
+                    let mut n = 0;
+                    let mut m = leaves;
+                    while m != 0 {
+                        let lane = m.trailing_zeros() as usize;
+                        m &= m - 1;
+                        let mut j = n;
+                        while j > 0 && order[j - 1].1 > dist[lane] {
+                            order[j] = order[j - 1];
+                            j -= 1;
+                        }
+                        order[j] = (node.child[lane], dist[lane]);
+                        n += 1;
                     }
-                    leaves[j] = (child, dist[lane]);
-                    n += 1;
+                    for &(child, d) in &order[..n] {
+                        if d > cull {
+                            break;
+                        }
+                        cull = leaf(child, &mut best, &mut found, stats);
+                    }
                 }
-            }
-            for &(child, d) in &leaves[..n] {
-                if d > cull {
-                    break;
-                }
-                cull = leaf(child, &mut best, &mut found, stats);
-            }
-            let mut m = inner;
-            while m != 0 {
-                let lane = m.trailing_zeros() as usize;
-                m &= m - 1;
-                if dist[lane] > cull {
-                    inner &= !(1 << lane);
+                let mut m = inner;
+                while m != 0 {
+                    let lane = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    if dist[lane] > cull {
+                        inner &= !(1 << lane);
+                    }
                 }
             }
             next = push_ordered(&mut stack, node, (inner, dist));
