@@ -198,21 +198,22 @@ pub struct PhaseTime {
     pub wall_ms: f64,
     /// CPU milliseconds summed over the pool's threads.
     pub cpu_ms: f64,
-    /// CPU milliseconds of the phase's serial part, from per-thread CPU accounting: with `T`
-    /// threads whose CPU times in the phase are `c_1..c_T` (sum `C`, largest `c_max`), the work
-    /// `C` is read as a serial part `S` done on one thread while the others wait plus a part
-    /// shared evenly, `c_max = S + (C − S)/T`, so `S = (T·c_max − C)/(T − 1)` (summed over the
-    /// phase's runs). With two threads `S = c_max − c_min` exactly: CPU time one thread spent
-    /// while the other did no work of the phase. Load imbalance counts as serial; a waiting
-    /// thread's brief spinning counts as work, so `S` errs low by that. Equal to `cpu_ms` on
-    /// one thread.
+    /// CPU milliseconds of the phase's serial part, from per-thread accounting: with `T`
+    /// threads whose CPU times in the phase are `c_1..c_T` (busiest `c_max`) and whose times
+    /// spent runnable but waiting for a core are `q_1..q_T`, `S = Σ_{i ≠ max} max(0, c_max − c_i
+    /// − q_i) / (T − 1)`: the CPU time the busiest thread spent while the others had no work of
+    /// the phase (for `T = 2` exactly that; for more threads their average). Load imbalance
+    /// counts as serial; time a thread was kept off its core by other tenants does not (the
+    /// busiest thread took that share of the work); a waiting thread's brief spinning counts as
+    /// work, so `S` errs low by that. Summed over the phase's runs; equal to `cpu_ms` on one
+    /// thread.
     pub serial_cpu_ms: f64,
 }
 
 impl PhaseTime {
     /// The phase's serial share `serial_cpu_ms / cpu_ms` (0 when the phase did not run): the
-    /// fraction of its work that ran on one thread only (1 on a one-thread pool). Amdahl's law
-    /// then bounds its speed-up on `T` threads by `1 / (s + (1 − s)/T)`.
+    /// fraction of its work that ran while the other threads had none (1 on a one-thread pool).
+    /// Amdahl's law then bounds its speed-up on `T` threads by `1 / (s + (1 − s)/T)`.
     pub fn serial_share(&self) -> f64 {
         if self.cpu_ms > 0.0 {
             (self.serial_cpu_ms / self.cpu_ms).clamp(0.0, 1.0)
@@ -324,36 +325,57 @@ impl Timed {
         })
     }
 
-    /// CPU milliseconds of every pool thread so far (by thread index).
-    fn thread_cpus(&self) -> Vec<f64> {
-        crate::cputime::pool_thread_cpu_times(&self.pool)
+    /// CPU and run-queue-wait milliseconds of every pool thread so far (by thread index).
+    fn thread_times(&self) -> Vec<(f64, f64)> {
+        crate::cputime::pool_thread_times(&self.pool)
             .into_iter()
-            .map(|d| d.as_secs_f64() * 1e3)
+            .map(|(c, w)| (c.as_secs_f64() * 1e3, w.as_secs_f64() * 1e3))
             .collect()
     }
 
     /// Run `f` in the pool as phase `p` (times add up if a phase runs twice).
     fn run<R: Send>(&mut self, p: Phase, f: impl FnOnce() -> R + Send) -> R {
-        let c0 = self.thread_cpus();
+        let c0 = self.thread_times();
         let t0 = Instant::now();
         let r = self.pool.install(f);
         let wall = t0.elapsed().as_secs_f64() * 1e3;
-        let c1 = self.thread_cpus();
-        let used: Vec<f64> = c1.iter().zip(&c0).map(|(b, a)| b - a).collect();
-        let cpu: f64 = used.iter().sum();
-        let busiest = used.iter().copied().fold(0.0, f64::max);
-        let t = used.len() as f64;
-        let serial = if used.len() > 1 {
-            ((t * busiest - cpu) / (t - 1.0)).clamp(0.0, cpu)
-        } else {
-            cpu
-        };
+        let c1 = self.thread_times();
+        let used: Vec<(f64, f64)> = c1
+            .iter()
+            .zip(&c0)
+            .map(|(b, a)| (b.0 - a.0, b.1 - a.1))
+            .collect();
+        let cpu: f64 = used.iter().map(|u| u.0).sum();
+        let serial = serial_cpu(&used);
         let slot = &mut self.phases[p as usize];
         slot.wall_ms += wall;
         slot.cpu_ms += cpu;
         slot.serial_cpu_ms += serial;
         r
     }
+}
+
+/// Serial CPU milliseconds of a phase from each thread's `(CPU, run-queue wait)` during it (see
+/// [`PhaseTime::serial_cpu_ms`]): the busiest thread's CPU time beyond each other thread's, less
+/// the time that other thread waited for a core (it wanted to work but another tenant held the
+/// core, so the busiest one took its share: not serial work), averaged over the `T − 1` others.
+fn serial_cpu(used: &[(f64, f64)]) -> f64 {
+    let cpu: f64 = used.iter().map(|u| u.0).sum();
+    if used.len() < 2 {
+        return cpu;
+    }
+    let (busiest, top) =
+        used.iter().enumerate().fold(
+            (0, f64::MIN),
+            |b, (i, u)| if u.0 > b.1 { (i, u.0) } else { b },
+        );
+    let idle: f64 = used
+        .iter()
+        .enumerate()
+        .filter(|&(i, _)| i != busiest)
+        .map(|(_, u)| (top - u.0 - u.1).max(0.0))
+        .sum();
+    (idle / (used.len() - 1) as f64).clamp(0.0, cpu)
 }
 
 /// Scene bounds of the boxes by a parallel reduction in fixed chunks.

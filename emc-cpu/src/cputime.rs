@@ -34,6 +34,30 @@ pub fn pool_thread_cpu_times(pool: &rayon::ThreadPool) -> Vec<Duration> {
     pool.broadcast(|_| thread_cpu_time())
 }
 
+/// Time the calling thread has spent runnable but waiting for a core (the scheduler's run
+/// queue, second field of Linux's `/proc/thread-self/schedstat`): time other tenants of the
+/// machine held the core it wanted. Zero where unavailable.
+pub fn thread_run_queue_wait() -> Duration {
+    #[cfg(target_os = "linux")]
+    {
+        if let Ok(s) = std::fs::read_to_string("/proc/thread-self/schedstat") {
+            if let Some(ns) = s
+                .split_whitespace()
+                .nth(1)
+                .and_then(|f| f.parse::<u64>().ok())
+            {
+                return Duration::from_nanos(ns);
+            }
+        }
+    }
+    Duration::ZERO
+}
+
+/// `(CPU time, run-queue wait)` of each worker of a rayon pool so far, by thread index.
+pub fn pool_thread_times(pool: &rayon::ThreadPool) -> Vec<(Duration, Duration)> {
+    pool.broadcast(|_| (thread_cpu_time(), thread_run_queue_wait()))
+}
+
 /// CPU time (user + system) of this whole process, finished threads included (`getrusage`);
 /// `None` where unavailable.
 pub fn process_cpu_time() -> Option<Duration> {

@@ -239,9 +239,11 @@ pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
     );
     if r.threads > 1 {
         println!(
-            "serial: share of a phase's thread-CPU time run on one thread while the others did \
-             none of its work, from per-thread CPU times c_i: (T*max c_i - sum c_i) / ((T-1) * \
-             sum c_i) (exact for T = 2: (max - min) / sum; load imbalance counts as serial)"
+            "serial: share of a phase's thread-CPU time the busiest thread spent while the \
+             others had none of its work: per-thread CPU c_i and run-queue wait q_i (time kept \
+             off the core by other tenants), sum over i != busiest of max(0, c_max - c_i - q_i) \
+             / (T-1) / sum c_i (T = 2: the busiest thread's CPU beyond the other's, less the \
+             other's run-queue wait); load imbalance counts as serial"
         );
     }
     if let Some(b) = &base {
