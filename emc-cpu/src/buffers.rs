@@ -1,8 +1,11 @@
 //! Large build buffers: the pipeline allocates ~100 bytes per primitive, and the page faults of
 //! fresh memory cost about a phase, so big buffers are reused when they are large enough (kept
-//! as they are when the caller overwrites every element), filled in parallel (first touch on
-//! every core) when they are not, and fresh big ones are hinted to transparent huge pages
-//! (San Miguel, first build, 2 threads, thread-CPU: AABB phase 121 -> 45 ms, sort 227 -> 187 ms).
+//! as they are when the caller overwrites every element) and filled in parallel (first touch on
+//! every core) when they are not. Transparent huge pages (`madvise(MADV_HUGEPAGE)` on fresh
+//! buffers) are not used: on a first San Miguel build they cut the AABB phase from ~115 to
+//! ~50 ms of thread-CPU, but the kernel's compaction at fault time made other phases erratic
+//! (a sort phase doubled).
+#![forbid(unsafe_code)]
 
 use rayon::prelude::*;
 
@@ -49,48 +52,15 @@ pub fn resized_par<T: Copy + Send + Sync>(v: &mut Vec<T>, n: usize, x: T) {
     }
 }
 
-/// `n` copies of `x` in a new allocation: zero pages for a zero integer (faulted in by the
-/// first writes), the huge-page hint given before anything is touched.
+/// `n` copies of `x` in a new allocation (zero pages for a zero integer, faulted in by the
+/// caller's own parallel first writes).
 fn fresh<T: Copy + Send + Sync>(n: usize, x: T) -> Vec<T> {
-    let v = filled(n, x);
-    hint_huge_pages(&v);
-    v
+    filled(n, x)
 }
 
-/// `n` copies of `x` in a new allocation, written in parallel after the huge-page hint.
+/// `n` copies of `x` in a new allocation, written in parallel.
 fn fresh_par<T: Copy + Send + Sync>(n: usize, x: T) -> Vec<T> {
-    let mut v: Vec<T> = Vec::with_capacity(n);
-    hint_huge_pages(&v);
-    v.par_extend((0..n).into_par_iter().with_min_len(1 << 14).map(|_| x));
-    v
-}
-
-/// Bytes of a transparent huge page (x86-64).
-const HUGE_PAGE: usize = 2 << 20;
-
-/// Ask the kernel to back the whole 2 MiB pages inside `v`'s allocation with transparent huge
-/// pages (`madvise(MADV_HUGEPAGE)`; systems in THP `madvise` mode only do so when asked): one
-/// fault and one 2 MiB clear instead of 512 faults per 2 MiB. Only for allocations of at least
-/// 8 MiB; a no-op where unsupported or refused (the hint changes no contents).
-fn hint_huge_pages<T>(v: &Vec<T>) {
-    let bytes = v.capacity() * std::mem::size_of::<T>();
-    if bytes < 4 * HUGE_PAGE {
-        return;
-    }
-    #[cfg(target_os = "linux")]
-    {
-        let start = v.as_ptr() as usize;
-        let first = start.next_multiple_of(HUGE_PAGE);
-        let end = (start + bytes) / HUGE_PAGE * HUGE_PAGE;
-        if end > first {
-            // SAFETY: `first..end` lies inside `v`'s live allocation (rounded inwards to whole
-            // huge pages) and MADV_HUGEPAGE only changes how the kernel backs those pages, never
-            // their contents or the mapping; the result is ignored (the hint is optional).
-            unsafe {
-                libc::madvise(first as *mut libc::c_void, end - first, libc::MADV_HUGEPAGE);
-            }
-        }
-    }
+    from_fn(n, |_| x)
 }
 
 /// A vector of `n` values made by `f`, filled in parallel.
