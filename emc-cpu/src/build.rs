@@ -20,7 +20,7 @@ use crate::bvh::refit::{gather_sorted, refit, CollapseParams, RadixTree};
 use crate::bvh::sweep::{sweep_tree, sweep_tree_in, SweepScratch};
 use crate::bvh::{sah_cost, sah_headline, Bvh, Node, SahConstants};
 use crate::scene::Scene;
-use crate::sort::{sort_pairs, sort_pairs_with, RadixKey, SortError, SortReport};
+use crate::sort::{sort_with_ids, RadixKey, SortError, SortReport};
 
 /// Boxes per rayon task in the frame and encode phases.
 const CHUNK: usize = 1 << 14;
@@ -407,8 +407,8 @@ pub fn encode_codes(enc: &Encoder, aabbs: &[Aabb]) -> Result<Vec<u64>, BuildErro
 pub fn sort_codes<K: RadixKey>(
     mut keys: Vec<K>,
 ) -> Result<(Vec<K>, Vec<u32>, SortReport), BuildError> {
-    let mut ids: Vec<u32> = crate::buffers::from_fn(keys.len(), |i| i as u32);
-    let r = sort_pairs(&mut keys, &mut ids)?;
+    let mut ids: Vec<u32> = Vec::new();
+    let r = sort_with_ids(&mut keys, &mut ids, &mut Vec::new(), &mut Vec::new())?;
     Ok((keys, ids, r))
 }
 
@@ -575,13 +575,10 @@ fn lbvh_phases<K: RadixKey>(
     arena: &mut BuildArena,
 ) -> Result<LbvhResult<K>, BuildError> {
     let k = opts.collapse;
-    let n = keys.len();
     let mut order = std::mem::take(&mut arena.ids);
     let vbuf = &mut arena.vbuf;
     let sort = timed.run(Phase::Sort, || {
-        order.clear();
-        order.par_extend((0..n as u32).into_par_iter().with_min_len(1 << 14));
-        sort_pairs_with(&mut keys, &mut order, kbuf, vbuf)
+        sort_with_ids(&mut keys, &mut order, kbuf, vbuf)
     })?;
     if opts.builder == Builder::Atrbvh {
         let bvh = atrbvh_phases(timed, &keys, aabbs, order, &k)?;

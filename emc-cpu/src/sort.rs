@@ -165,7 +165,8 @@ fn split_width(m: usize, hi: u32, lo: u32) -> u32 {
 
 /// Sorts `(dk, dv)`, using `(ok, ov)` (same length) as the other buffer; the result ends in the
 /// data buffer when `want_in_data`, else in the other one. `mask` is the range's varying bits
-/// when known. Ranges of at least [`PARALLEL_MIN`] pairs are split by the pool and their buckets
+/// when known; with `ids` the values are not read but taken to be the positions `0, 1, …` (and
+/// written so). Ranges of at least [`PARALLEL_MIN`] pairs are split by the pool and their buckets
 /// sorted as tasks; smaller ones by [`lsd`] (or an insertion sort) on the calling thread. That
 /// choice depends on the size only, so one thread does the same work as many. Returns the depth
 /// (splits and passes on the longest way).
@@ -176,8 +177,13 @@ fn sort_range<K: RadixKey>(
     ov: &mut [u32],
     want_in_data: bool,
     mask: Option<u64>,
+    ids: bool,
 ) -> u32 {
     let m = dk.len();
+    if ids && m < PARALLEL_MIN {
+        // Small: the values are the positions, written before any step reads them.
+        fill_positions(dv);
+    }
     if m <= INSERTION_MAX {
         insertion_sort(dk, dv);
         if !want_in_data {
@@ -190,6 +196,9 @@ fn sort_range<K: RadixKey>(
     let mask = mask.unwrap_or_else(|| varying_mask(dk, par && rayon::current_num_threads() > 1));
     if mask == 0 {
         // All keys equal: already in stable order.
+        if ids && par {
+            fill_positions(dv);
+        }
         if !want_in_data {
             ok.copy_from_slice(dk);
             ov.copy_from_slice(dv);
@@ -204,7 +213,7 @@ fn sort_range<K: RadixKey>(
     let w = split_width(m, hi, lo);
     let shift = hi - w;
     // The split moves the pairs into the other buffer; the buckets sort from there.
-    let starts = split_parallel(dk, dv, ok, ov, shift, w);
+    let starts = split_parallel(dk, dv, ok, ov, shift, w, ids);
     // After a split on the lowest varying bits every bucket holds equal keys.
     let last = shift <= lo;
     let mut buckets = Vec::with_capacity(1 << w);
@@ -233,7 +242,7 @@ fn sort_range<K: RadixKey>(
                 }
                 0
             } else {
-                sort_range(ks, vs, kd, vd, !want_in_data, None)
+                sort_range(ks, vs, kd, vd, !want_in_data, None, false)
             }
         })
         .max();
@@ -312,10 +321,7 @@ fn lsd<K: RadixKey>(
 /// Sort `keys` ascending and apply the same permutation to `vals`, stably (equal keys keep the
 /// order of their values' positions). Runs on the current rayon pool; the result does not
 /// depend on the number of threads.
-pub fn sort_pairs<K: RadixKey>(
-    keys: &mut [K],
-    vals: &mut [u32],
-) -> Result<SortReport, SortError> {
+pub fn sort_pairs<K: RadixKey>(keys: &mut [K], vals: &mut [u32]) -> Result<SortReport, SortError> {
     sort_pairs_with(keys, vals, &mut Vec::new(), &mut Vec::new())
 }
 
@@ -346,12 +352,60 @@ pub fn sort_pairs_with<K: RadixKey>(
     }
     scratch(kscratch, n);
     scratch(vscratch, n);
+    let (mask, mut report) = survey(keys);
+    if mask == 0 {
+        return Ok(report);
+    }
+    report.depth = sort_range(keys, vals, kscratch, vscratch, true, Some(mask), false);
+    Ok(report)
+}
+
+/// Sort `keys` ascending (stably) and make `ids[p]` the original position of the key now at
+/// `p`: [`sort_pairs_with`] on the values `0, 1, …, n − 1`, which the first split writes itself
+/// instead of reading them (`ids` is resized to `keys.len()`; its old contents do not matter).
+pub fn sort_with_ids<K: RadixKey>(
+    keys: &mut [K],
+    ids: &mut Vec<u32>,
+    kscratch: &mut Vec<K>,
+    vscratch: &mut Vec<u32>,
+) -> Result<SortReport, SortError> {
+    let n = keys.len();
+    if n > u32::MAX as usize {
+        return Err(SortError::TooMany(n));
+    }
+    crate::buffers::resized(ids, n, 0);
+    scratch(kscratch, n);
+    scratch(vscratch, n);
+    let (mask, mut report) = survey(keys);
+    report.depth = if mask == 0 {
+        fill_positions(ids);
+        0
+    } else {
+        sort_range(keys, ids, kscratch, vscratch, true, Some(mask), true)
+    };
+    Ok(report)
+}
+
+/// Write `0, 1, …` into `v` (in parallel when long).
+fn fill_positions(v: &mut [u32]) {
+    v.par_chunks_mut(PARALLEL_MIN)
+        .enumerate()
+        .for_each(|(c, s)| {
+            for (i, x) in s.iter_mut().enumerate() {
+                *x = (c * PARALLEL_MIN + i) as u32;
+            }
+        });
+}
+
+/// The keys' varying bits and the report fields that follow from them.
+fn survey<K: RadixKey>(keys: &[K]) -> (u64, SortReport) {
+    let n = keys.len();
     let mut report = SortReport {
         skipped: K::BYTES as u32,
         ..SortReport::default()
     };
     if n < 2 {
-        return Ok(report);
+        return (0, report);
     }
     let mask = varying_mask(keys, n >= PARALLEL_MIN && rayon::current_num_threads() > 1);
     let varying_bytes = (0..K::BYTES)
@@ -359,17 +413,15 @@ pub fn sort_pairs_with<K: RadixKey>(
         .count() as u32;
     report.passes = varying_bytes;
     report.skipped = K::BYTES as u32 - varying_bytes;
-    if mask == 0 {
-        return Ok(report);
+    if mask != 0 {
+        let hi = 64 - mask.leading_zeros();
+        let lo = mask.trailing_zeros();
+        report.varying_bits = hi - lo;
+        if n >= PARALLEL_MIN {
+            report.top_digit_bits = split_width(n, hi, lo);
+        }
     }
-    let hi = 64 - mask.leading_zeros();
-    let lo = mask.trailing_zeros();
-    report.varying_bits = hi - lo;
-    if n >= PARALLEL_MIN {
-        report.top_digit_bits = split_width(n, hi, lo);
-    }
-    report.depth = sort_range(keys, vals, kscratch, vscratch, true, Some(mask));
-    Ok(report)
+    (mask, report)
 }
 
 /// One chunk's destination slots of every bucket, keys and values.
@@ -385,6 +437,7 @@ fn split_parallel<K: RadixKey>(
     vout: &mut [u32],
     shift: u32,
     w: u32,
+    ids: bool,
 ) -> Vec<usize> {
     let n = keys.len();
     let threads = rayon::current_num_threads();
@@ -430,15 +483,23 @@ fn split_parallel<K: RadixKey>(
     keys.par_chunks(chunk_len)
         .zip(vals.par_chunks(chunk_len))
         .zip(per_chunk.into_par_iter())
-        .for_each(|((kc, vc), (kd, vd))| scatter_chunk(kc, vc, kd, vd, shift, w));
+        .enumerate()
+        .for_each(|(c, ((kc, vc), (kd, vd)))| {
+            if ids {
+                let first = (c * chunk_len) as u32;
+                scatter_chunk(kc, (first..).take(kc.len()), kd, vd, shift, w)
+            } else {
+                scatter_chunk(kc, vc.iter().copied(), kd, vd, shift, w)
+            }
+        });
     starts
 }
 
-/// Scatter one chunk into its own slots of every bucket: `kd[d]`, `vd[d]` hold exactly the
-/// chunk's count of digit `d`, in bucket order.
+/// Scatter one chunk (keys `kc`, values `vc`) into its own slots of every bucket: `kd[d]`,
+/// `vd[d]` hold exactly the chunk's count of digit `d`, in bucket order.
 fn scatter_chunk<K: RadixKey>(
     kc: &[K],
-    vc: &[u32],
+    vc: impl Iterator<Item = u32>,
     kd: Vec<&mut [K]>,
     vd: Vec<&mut [u32]>,
     shift: u32,
@@ -448,7 +509,7 @@ fn scatter_chunk<K: RadixKey>(
     // Write cursors into the chunk's own sub-slice of every bucket.
     let mut kp: Vec<*mut K> = kd.into_iter().map(|s| s.as_mut_ptr()).collect();
     let mut vp: Vec<*mut u32> = vd.into_iter().map(|s| s.as_mut_ptr()).collect();
-    for (&k, &v) in kc.iter().zip(vc) {
+    for (&k, v) in kc.iter().zip(vc) {
         let d = digit(k, shift, mask);
         // SAFETY: `d < radix` (masked), the cursor vectors have `radix` entries.
         // `kp[d]`/`vp[d]` start at this chunk's own, exclusively borrowed sub-slices of
@@ -520,7 +581,10 @@ mod tests {
                 let r = check(vec![0xdead_beef_u64; n], threads);
                 assert_eq!((r.passes, r.skipped, r.varying_bits), (0, 8, 0));
                 check((0..n as u64).map(|i| (i * 7919) % 2).collect(), threads);
-                check((0..n as u32).map(|i| ((i % 3) << 31) >> 1).collect(), threads);
+                check(
+                    (0..n as u32).map(|i| ((i % 3) << 31) >> 1).collect(),
+                    threads,
+                );
             }
             // Only the lowest bits used; only the highest bit; descending; many duplicates.
             let n = 250_000;
@@ -555,6 +619,44 @@ mod tests {
                     .collect::<Vec<u64>>(),
                 threads,
             );
+        }
+    }
+
+    #[test]
+    fn sort_with_ids_equals_sort_pairs_on_positions() {
+        let mut s = 13u64;
+        let sets: Vec<Vec<u64>> = vec![
+            vec![],
+            vec![4],
+            vec![3; 70_000],
+            (0..100).map(|i| (i * 37) % 11).collect(),
+            (0..70_000).map(|_| lcg(&mut s) & 0x3ff).collect(),
+            (0..300_000).map(|_| lcg(&mut s) << 11).collect(),
+            (0..300_000)
+                .map(|i| if i % 9 == 0 { lcg(&mut s) } else { 5 << 60 })
+                .collect(),
+        ];
+        for keys in sets {
+            let n = keys.len();
+            let (mut want_k, mut want_v) = (keys.clone(), (0..n as u32).collect::<Vec<_>>());
+            let want_r = sort_pairs(&mut want_k, &mut want_v).unwrap();
+            for threads in [1, 2, 3] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                // Stale contents in every buffer must not matter.
+                let (mut k, mut ids) = (keys.clone(), vec![7u32; n / 2]);
+                let (mut ks, mut vs) = (vec![1u64; n], vec![9u32; n + 5]);
+                let r = pool
+                    .install(|| sort_with_ids(&mut k, &mut ids, &mut ks, &mut vs))
+                    .unwrap();
+                assert_eq!(
+                    (&k, &ids, r),
+                    (&want_k, &want_v, want_r),
+                    "n {n}, {threads} threads"
+                );
+            }
         }
     }
 
