@@ -486,3 +486,90 @@ fn emit_leaf(
     }
     LEAF | first
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bvh::node::Node;
+
+    /// A median-split BVH2 over `tris` with one triangle per leaf (node 0 is the root).
+    fn median(tris: &[[Vec3; 3]]) -> Bvh {
+        fn build(tris: &[[Vec3; 3]], lo: usize, hi: usize, nodes: &mut Vec<Node>) -> u32 {
+            let b = tris[lo..hi].iter().fold(Aabb::EMPTY, |b, t| {
+                b.union(&Aabb::from_triangle(t[0], t[1], t[2]))
+            });
+            let me = nodes.len() as u32;
+            if hi - lo == 1 {
+                nodes.push(Node::leaf(b, lo as u32, 1));
+                return me;
+            }
+            nodes.push(Node::leaf(b, 0, 1));
+            let mid = (lo + hi) / 2;
+            let l = build(tris, lo, mid, nodes);
+            let r = build(tris, mid, hi, nodes);
+            nodes[me as usize] = Node::inner(b, l, r);
+            me
+        }
+        let mut nodes = Vec::new();
+        build(tris, 0, tris.len(), &mut nodes);
+        Bvh {
+            nodes,
+            prim_indices: (0..tris.len() as u32).collect(),
+            root: 0,
+        }
+    }
+
+    /// Leaf codes of a wide tree, in node order.
+    fn leaf_codes<const W: usize>(nodes: &[WideNodeN<W>]) -> Vec<u32> {
+        let mut v: Vec<u32> = nodes
+            .iter()
+            .flat_map(|n| n.child)
+            .filter(|&c| c != EMPTY && c & LEAF != 0)
+            .collect();
+        v.sort_unstable();
+        v
+    }
+
+    #[test]
+    fn collapse_covers_every_triangle_once_with_shared_bounded_leaves() {
+        // Triangles of very different sizes along a line, so the SAH has choices to make.
+        let tris: Vec<[Vec3; 3]> = (0..1000)
+            .map(|i| {
+                let x = (i as f32).powf(1.3);
+                let s = 0.1 + (i % 7) as f32;
+                [
+                    Vec3::new(x, 0.0, 0.0),
+                    Vec3::new(x + s, 0.0, (i % 3) as f32),
+                    Vec3::new(x, s, 0.0),
+                ]
+            })
+            .collect();
+        let w = WideBvh::from_bvh2(&median(&tris), &tris).unwrap();
+        // Every triangle in exactly one real packet lane.
+        let mut seen = vec![0u32; tris.len()];
+        for p in &w.packets {
+            for &id in &p.id[..p.count as usize] {
+                seen[id as usize] += 1;
+            }
+        }
+        assert!(seen.iter().all(|&c| c == 1));
+        // Both trees reach the same leaves, each leaf once; merged leaves stay within the bound.
+        let l8 = leaf_codes(&w.nodes8);
+        assert_eq!(l8, leaf_codes(&w.nodes));
+        assert_eq!(l8.len(), w.leaves);
+        assert!(l8.windows(2).all(|p| p[0] < p[1]));
+        for &c in &l8 {
+            let (mut i, mut total) = ((c & !LEAF) as usize, 0);
+            loop {
+                total += w.packets[i].count;
+                if w.packets[i].last != 0 {
+                    break;
+                }
+                i += 1;
+            }
+            assert!((1..=MAX_LEAF_TRIANGLES).contains(&total));
+        }
+        // The cover uses the width: far fewer nodes than a binary tree.
+        assert!(w.nodes8.len() * 4 < tris.len() && w.leaves < tris.len());
+    }
+}
