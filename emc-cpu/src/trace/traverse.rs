@@ -722,6 +722,17 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
             let leaves = mask & lm;
             let mut inner = mask & !lm;
             if leaves != 0 {
+                // Fetch the entered inner children while the leaves are tested, so their
+                // cache misses overlap the triangle tests.
+                let mut m = inner;
+                while m != 0 {
+                    let lane = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    prefetch(
+                        &nodes[node.child[lane] as usize],
+                        core::mem::size_of::<WideNodeN<W>>(),
+                    );
+                }
                 if leaves & (leaves - 1) == 0 {
                     // One leaf: entered within `cull`, so tested.
                     let lane = leaves.trailing_zeros() as usize;
