@@ -147,11 +147,13 @@ impl fmt::Display for Pipeline {
     /// For example `quantize: avx2 f64x4; expand: table (byte tables, scalar loads per lane)`.
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self.quantize {
-            QuantizePath::Avx2 if self.wide => write!(f, "quantize: avx-512 f64x8")?,
-            QuantizePath::Avx2 => write!(f, "quantize: avx2 f64x4")?,
-            QuantizePath::Scalar => write!(f, "quantize: scalar f64")?,
+            QuantizePath::Avx2 if self.wide => write!(
+                f,
+                "quantize: avx-512 f64x8 (AVX-512 present, pdep backend: eight boxes per step)"
+            )?,
+            QuantizePath::Avx2 => write!(f, "quantize: avx2 f64x4 ({})", self.quantize_reason)?,
+            QuantizePath::Scalar => write!(f, "quantize: scalar f64 ({})", self.quantize_reason)?,
         }
-        write!(f, " ({})", self.quantize_reason)?;
         if let Some(s) = self.size {
             write!(f, ", {s}")?;
         }
