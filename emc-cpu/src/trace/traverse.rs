@@ -420,7 +420,7 @@ trait Lanes<const W: usize> {
                 let lane = m.trailing_zeros() as usize;
                 m &= m - 1;
                 if h.redo & (1 << lane) != 0 {
-                    if let Some((t, u, v)) = triangle_test(r, &p.lane(lane), tmax) {
+                    if let Some((t, u, v)) = redo_lane(r, p, lane, tmax) {
                         f(t, u, v, p.id[lane]);
                     }
                 } else {
@@ -441,6 +441,15 @@ trait Lanes<const W: usize> {
             }
         }
     }
+}
+
+/// The scalar test of one packet lane whose SIMD edge function was zero (rare), kept out of
+/// line so the hot loops stay small.
+#[cfg(target_arch = "x86_64")]
+#[cold]
+#[inline(never)]
+fn redo_lane(r: &PreRay, p: &TriPacket, lane: usize, tmax: f32) -> Option<(f32, f32, f32)> {
+    triangle_test(r, &p.lane(lane), tmax)
 }
 
 /// The scalar reference tests, for either width.
