@@ -15,22 +15,23 @@ pub fn filled<T: Copy + Send + Sync>(n: usize, x: T) -> Vec<T> {
     vec![x; n]
 }
 
-/// Make `v` hold `n` copies of `x`, reusing its allocation when it is large enough (its pages
-/// are then already mapped: a memset instead of page faults); else as [`filled`].
-pub fn refill<T: Copy + Send + Sync>(v: &mut Vec<T>, n: usize, x: T) {
-    if v.capacity() >= n {
-        v.clear();
-        v.resize(n, x);
-    } else {
-        *v = filled(n, x);
-    }
-}
-
 /// Make `v` hold `n` elements whose values do not matter (the caller overwrites every one):
 /// a reused allocation keeps its old elements, so a warm build neither clears nor refills it
 /// (only a longer tail is written with `x`); a new one is [`filled`] (for a zero integer: fresh
 /// zero pages, faulted in by the caller's own parallel writes).
 pub fn resized<T: Copy + Send + Sync>(v: &mut Vec<T>, n: usize, x: T) {
+    resize_keeping(v, n, x, filled);
+}
+
+/// [`resized`] for a type whose fill is not zero pages: a new allocation is filled with `x` in
+/// parallel (first touch, and its page faults, on every core of the current pool).
+pub fn resized_par<T: Copy + Send + Sync>(v: &mut Vec<T>, n: usize, x: T) {
+    resize_keeping(v, n, x, |n, x| from_fn(n, |_| x));
+}
+
+/// `v` to length `n`: truncated or extended with `x` in its own allocation, or replaced by
+/// `fresh(n, x)` when that is too small.
+fn resize_keeping<T: Copy>(v: &mut Vec<T>, n: usize, x: T, fresh: impl FnOnce(usize, T) -> Vec<T>) {
     if v.len() >= n {
         v.truncate(n);
     } else if v.capacity() >= n {
@@ -38,29 +39,6 @@ pub fn resized<T: Copy + Send + Sync>(v: &mut Vec<T>, n: usize, x: T) {
     } else {
         *v = fresh(n, x);
     }
-}
-
-/// [`resized`] for a type whose fill is not zero pages: a new allocation is filled with `x` in
-/// parallel (first touch, and its page faults, on every core of the current pool).
-pub fn resized_par<T: Copy + Send + Sync>(v: &mut Vec<T>, n: usize, x: T) {
-    if v.len() >= n {
-        v.truncate(n);
-    } else if v.capacity() >= n {
-        v.resize(n, x);
-    } else {
-        *v = fresh_par(n, x);
-    }
-}
-
-/// `n` copies of `x` in a new allocation (zero pages for a zero integer, faulted in by the
-/// caller's own parallel first writes).
-fn fresh<T: Copy + Send + Sync>(n: usize, x: T) -> Vec<T> {
-    filled(n, x)
-}
-
-/// `n` copies of `x` in a new allocation, written in parallel.
-fn fresh_par<T: Copy + Send + Sync>(n: usize, x: T) -> Vec<T> {
-    from_fn(n, |_| x)
 }
 
 /// A vector of `n` values made by `f`, filled in parallel.

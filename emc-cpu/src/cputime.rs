@@ -26,12 +26,7 @@ pub fn thread_cpu_time() -> Duration {
 /// CPU time consumed so far by every worker of a rayon pool (the caller waits in `install`
 /// and is idle, so it is not counted).
 pub fn pool_cpu_time(pool: &rayon::ThreadPool) -> Duration {
-    pool_thread_cpu_times(pool).into_iter().sum()
-}
-
-/// CPU time consumed so far by each worker of a rayon pool, by thread index.
-pub fn pool_thread_cpu_times(pool: &rayon::ThreadPool) -> Vec<Duration> {
-    pool.broadcast(|_| thread_cpu_time())
+    pool.broadcast(|_| thread_cpu_time()).into_iter().sum()
 }
 
 /// Time the calling thread has spent runnable but waiting for a core (the scheduler's run
