@@ -107,6 +107,11 @@ pub const DEFAULT_LEAF_SIZE: u32 = 4;
 pub struct Accel {
     bvh: WideBvh,
     tris: Vec<[Vec3; 3]>,
+    /// The mesh's triangles as vertex indices (for [`Accel::rebuild`]).
+    indices: Vec<[u32; 3]>,
+    /// Vertices the indices address.
+    vertex_count: usize,
+    opts: BuildOptions,
     pool: Option<Arc<rayon::ThreadPool>>,
 }
 
@@ -130,7 +135,33 @@ impl Accel {
             }
             tris.push(v);
         }
-        Accel::from_triangles(tris, opts)
+        let mut a = Accel::from_triangles(tris, opts)?;
+        a.indices = indices.to_vec();
+        a.vertex_count = vertices.len();
+        Ok(a)
+    }
+
+    /// Rebuild over new positions of the same mesh: `vertices` replaces the vertices of the
+    /// [`Accel::build`] call (same count, same indices; for [`Accel::from_triangles`] the
+    /// vertices are the triangles' corners in order, three per triangle), with the same
+    /// options. Fails, leaving the structure as it was, on a vertex count that differs from
+    /// the build's or on a non-finite vertex.
+    pub fn rebuild(&mut self, vertices: &[Vec3]) -> Result<(), TraceError> {
+        if vertices.len() != self.vertex_count {
+            return Err(TraceError::VertexCount {
+                given: vertices.len(),
+                expected: self.vertex_count,
+            });
+        }
+        let tris: Vec<[Vec3; 3]> = self
+            .indices
+            .iter()
+            .map(|t| t.map(|i| vertices[i as usize]))
+            .collect();
+        let bvh2 = self.run(|| build_bvh2(&tris, &self.opts))?;
+        self.bvh = WideBvh::from_bvh2(&bvh2, &tris)?;
+        self.tris = tris;
+        Ok(())
     }
 
     /// Build over a triangle list (triangle id = position in `tris`).
@@ -154,17 +185,31 @@ impl Accel {
             None => build_bvh2(&tris, opts)?,
         };
         let bvh = WideBvh::from_bvh2(&bvh2, &tris)?;
-        Ok(Accel { bvh, tris, pool })
+        Ok(Accel::assemble(bvh, tris, *opts, pool))
+    }
+
+    fn assemble(
+        bvh: WideBvh,
+        tris: Vec<[Vec3; 3]>,
+        opts: BuildOptions,
+        pool: Option<Arc<rayon::ThreadPool>>,
+    ) -> Accel {
+        let n = tris.len() as u32;
+        Accel {
+            bvh,
+            indices: (0..n).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect(),
+            vertex_count: tris.len() * 3,
+            tris,
+            opts,
+            pool,
+        }
     }
 
     /// Wrap a BVH2 from any builder (validated against `tris`, then collapsed to 4- and 8-wide).
+    /// A later [`Accel::rebuild`] builds with the default options.
     pub fn from_bvh2(bvh2: &Bvh, tris: Vec<[Vec3; 3]>) -> Result<Accel, TraceError> {
         let bvh = WideBvh::from_bvh2(bvh2, &tris)?;
-        Ok(Accel {
-            bvh,
-            tris,
-            pool: None,
-        })
+        Ok(Accel::assemble(bvh, tris, BuildOptions::default(), None))
     }
 
     /// The closest hit of `ray` in `[tnear, tfar]` (`None` for a miss or an invalid ray:

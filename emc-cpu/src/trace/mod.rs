@@ -53,6 +53,14 @@ pub enum TraceError {
     /// The BVH build failed.
     #[error("BVH build failed: {0}")]
     Build(String),
+    /// [`Accel::rebuild`] got a different number of vertices than the build.
+    #[error("rebuild got {given} vertices, but the mesh was built with {expected}")]
+    VertexCount {
+        /// Vertices given.
+        given: usize,
+        /// Vertices of the build.
+        expected: usize,
+    },
     /// A thread pool could not be created.
     #[error("cannot create a thread pool: {0}")]
     ThreadPool(String),
