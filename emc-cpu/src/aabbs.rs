@@ -4,7 +4,7 @@
 
 use std::sync::OnceLock;
 
-use emc_core::Aabb;
+use emc_core::{Aabb, SceneBounds};
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -82,6 +82,44 @@ pub fn triangle_aabbs_with(
         .for_each(|(o, t)| chunk_aabbs(path, vertices, t, o));
 }
 
+/// Triangle boxes into `out` (one per triangle) and their [`SceneBounds`] in the same pass, on
+/// the current rayon pool. The bounds equal [`crate::build::scene_bounds`] of the boxes; a
+/// non-finite vertex is reported as that function reports it (the first such triangle).
+pub fn triangle_aabbs_bounds(
+    vertices: &[Vec3],
+    indices: &[[u32; 3]],
+    out: &mut [Aabb],
+) -> Result<SceneBounds, emc_core::Error> {
+    let path = AabbPath::detect();
+    out.par_chunks_mut(CHUNK)
+        .zip(indices.par_chunks(CHUNK))
+        .enumerate()
+        .map(|(c, (o, t))| chunk_aabbs_bounds(path, vertices, t, o, c * CHUNK))
+        .try_reduce(|| SceneBounds::EMPTY, |a, b| Ok(a.merge(&b)))
+}
+
+/// One chunk of [`triangle_aabbs_bounds`]; `base` is the index of its first triangle.
+pub fn chunk_aabbs_bounds(
+    path: AabbPath,
+    vertices: &[Vec3],
+    indices: &[[u32; 3]],
+    out: &mut [Aabb],
+    base: usize,
+) -> Result<SceneBounds, emc_core::Error> {
+    assert_eq!(out.len(), indices.len(), "one box per triangle");
+    #[cfg(target_arch = "x86_64")]
+    if path == AabbPath::Avx2 && path.available() && !indices.is_empty() {
+        // SAFETY: AVX2 is present (checked by `available`), and the lengths match.
+        if let Some(b) = unsafe { avx2::aabbs_bounds(vertices, indices, out) } {
+            return Ok(b);
+        }
+        // A non-finite coordinate: the reference reduction names the triangle.
+        return SceneBounds::of(out, base);
+    }
+    chunk_aabbs(path, vertices, indices, out);
+    SceneBounds::of(out, base)
+}
+
 /// One chunk, on the calling thread (also the single-thread entry point of benches).
 pub fn chunk_aabbs(path: AabbPath, vertices: &[Vec3], indices: &[[u32; 3]], out: &mut [Aabb]) {
     assert_eq!(out.len(), indices.len(), "one box per triangle");
@@ -148,7 +186,69 @@ pub fn scalar_aabbs(vertices: &[Vec3], indices: &[[u32; 3]], out: &mut [Aabb]) {
 mod avx2 {
     use core::arch::x86_64::*;
 
-    use super::{triangle_aabb, Aabb, Vec3};
+    use super::{triangle_aabb, Aabb, SceneBounds, Vec3};
+
+    /// [`aabbs`] that also gathers the chunk's [`SceneBounds`] in the same loop: the box union
+    /// in `f32` lanes and the centre sums `min + max` in `f64` lanes (exact: the centre is
+    /// half of it, and halving commutes with min and max). `None` when some box coordinate is
+    /// not finite (`x − x` is NaN exactly then); the caller then asks the reference.
+    ///
+    /// # Safety
+    /// The CPU must support AVX2; `out.len() == indices.len() > 0`.
+    #[target_feature(enable = "avx2")]
+    pub(super) unsafe fn aabbs_bounds(
+        vertices: &[Vec3],
+        indices: &[[u32; 3]],
+        out: &mut [Aabb],
+    ) -> Option<SceneBounds> {
+        // SAFETY: same contract as ours.
+        unsafe { aabbs(vertices, indices, out) };
+        let n = out.len();
+        let p = out.as_ptr() as *const f32;
+        // SAFETY: AVX2 is enabled for this function; the loads read box t's six floats and
+        // (for t + 1 < n) the next box's first two, inside `out`; the last box is read by a
+        // scalar path.
+        unsafe {
+            let mut lo = _mm_set1_ps(f32::INFINITY);
+            let mut hi = _mm_set1_ps(f32::NEG_INFINITY);
+            let mut cmin = _mm256_set1_pd(f64::INFINITY);
+            let mut cmax = _mm256_set1_pd(f64::NEG_INFINITY);
+            let mut bad = _mm_setzero_ps();
+            let mut step = |mn: __m128, mx: __m128| {
+                lo = _mm_min_ps(lo, mn);
+                hi = _mm_max_ps(hi, mx);
+                let c = _mm256_add_pd(_mm256_cvtps_pd(mn), _mm256_cvtps_pd(mx));
+                cmin = _mm256_min_pd(cmin, c);
+                cmax = _mm256_max_pd(cmax, c);
+                let z = _mm_add_ps(_mm_sub_ps(mn, mn), _mm_sub_ps(mx, mx));
+                bad = _mm_or_ps(bad, _mm_cmpunord_ps(z, z));
+            };
+            for t in 0..n - 1 {
+                step(_mm_loadu_ps(p.add(6 * t)), _mm_loadu_ps(p.add(6 * t + 3)));
+            }
+            let b = out[n - 1];
+            step(
+                _mm_setr_ps(b.min.x, b.min.y, b.min.z, 0.0),
+                _mm_setr_ps(b.max.x, b.max.y, b.max.z, 0.0),
+            );
+            // Lane 3 holds the next box's first coordinates (or 0): ignored.
+            if _mm_movemask_ps(bad) & 0b111 != 0 {
+                return None;
+            }
+            let (mut l, mut h) = ([0.0f32; 4], [0.0f32; 4]);
+            _mm_storeu_ps(l.as_mut_ptr(), lo);
+            _mm_storeu_ps(h.as_mut_ptr(), hi);
+            let (mut cl, mut ch) = ([0.0f64; 4], [0.0f64; 4]);
+            _mm256_storeu_pd(cl.as_mut_ptr(), cmin);
+            _mm256_storeu_pd(ch.as_mut_ptr(), cmax);
+            Some(SceneBounds {
+                centroid_min: [cl[0] * 0.5, cl[1] * 0.5, cl[2] * 0.5],
+                centroid_max: [ch[0] * 0.5, ch[1] * 0.5, ch[2] * 0.5],
+                prim: Aabb::new(Vec3::new(l[0], l[1], l[2]), Vec3::new(h[0], h[1], h[2])),
+                count: n,
+            })
+        }
+    }
 
     /// AVX2 boxes.
     ///

@@ -162,16 +162,19 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         restructure,
         threads: Some(args.threads),
         leaf_size: args.leaf_size,
+        width: args.width,
     };
     let (b, l, r) = opts.resolve();
-    let tris: Vec<_> = (0..scene.triangle_count())
-        .map(|i| scene.triangle(i))
-        .collect();
+    if let Some(n) = args.width {
+        if n != 4 && n != 8 {
+            bail!("--width {n}: the tracer has 4- and 8-wide trees");
+        }
+    }
     let t0 = Instant::now();
-    let accel = Accel::from_triangles(tris, &opts)?;
+    let accel = Accel::build(&scene.vertices, &scene.indices, &opts)?;
     let build_ms = t0.elapsed().as_secs_f64() * 1e3;
     let w = accel.wide_bvh();
-    let tris = accel.triangles();
+    let tris = &accel.triangles()[..];
     println!(
         "scene {}: {} triangles; builder {b}, layout {l}, restructure {}, leaf size {}, threads {}",
         scene.name,
@@ -181,21 +184,16 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
             .unwrap_or(crate::trace::api::DEFAULT_LEAF_SIZE),
         args.threads
     );
+    let kind = accel.node_test();
     println!(
-        "build + collapse to 4- and 8-wide: {build_ms:.1} ms wall; {} / {} wide nodes, {} leaves, depth {} / {}, {:.1} MiB",
-        w.nodes.len(),
-        w.nodes8.len(),
+        "build (triangles to a traceable {}-wide BVH, first build in this process, thread pool included): {build_ms:.1} ms wall; {} wide nodes, {} leaves, depth {}, {:.1} MiB, SAH {:.2}",
+        kind.width(),
+        w.nodes.len() + w.nodes8.len(),
         w.leaves,
-        w.depth,
-        w.depth8,
-        w.memory_bytes() as f64 / (1 << 20) as f64
+        w.depth.max(w.depth8),
+        w.memory_bytes() as f64 / (1 << 20) as f64,
+        w.sah()
     );
-    let kind = match args.width {
-        None => NodeTest::fastest(),
-        Some(4) => NodeTest::Simd,
-        Some(8) => NodeTest::Avx2,
-        Some(n) => bail!("--width {n}: the tracer has 4- and 8-wide trees"),
-    };
     println!(
         "traversal: {}-wide, {:?} node test{}",
         kind.width(),

@@ -42,14 +42,15 @@ use crate::bvh::refit::CollapseParams;
 use crate::bvh::Bvh;
 use crate::trace::intersect::{Hit, Ray};
 use crate::trace::traverse::{closest, occluded, NodeTest, TraceStats};
-use crate::trace::wide::WideBvh;
+use crate::trace::wide::{WideBvh, WIDTH, WIDTH8};
+use crate::trace::wide_lbvh::{build_fast, FastScratch, FastTimes};
 use crate::trace::TraceError;
 
 /// Speed / quality trade-off of [`Accel::build`].
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Preset {
-    /// Fastest build: one-pass LBVH (`lbvh-apetrei`) over `emc64-var` codes, for dynamic
-    /// scenes.
+    /// Fastest build: the LBVH's radix tree (`lbvh`) over `emc32-var` codes opened straight
+    /// into the traced wide tree (see `trace::wide_lbvh`), for scenes rebuilt every frame.
     Fast,
     /// LBVH (`lbvh`, `emc64-var`) improved by agglomerative treelet restructuring (`atrbvh`).
     #[default]
@@ -73,6 +74,8 @@ pub struct BuildOptions {
     pub threads: Option<usize>,
     /// Largest leaf of the SAH leaf collapse (1 keeps one triangle per leaf; default 4).
     pub leaf_size: Option<u32>,
+    /// Children per node of the traced tree, 4 or 8 (`None`: [`default_width`]).
+    pub width: Option<usize>,
 }
 
 impl BuildOptions {
@@ -87,7 +90,7 @@ impl BuildOptions {
     /// The builder, layout and restructuring the preset and overrides resolve to.
     pub fn resolve(&self) -> (Builder, LayoutSpec, bool) {
         let (b, l, r) = match self.preset {
-            Preset::Fast => (Builder::LbvhApetrei, LayoutSpec::Emc64Var, false),
+            Preset::Fast => (Builder::Lbvh, LayoutSpec::Emc32Var, false),
             Preset::Balanced => (Builder::Lbvh, LayoutSpec::Emc64Var, true),
             Preset::Quality => (Builder::BinnedSah, LayoutSpec::Emc64Var, false),
         };
@@ -102,70 +105,45 @@ impl BuildOptions {
 /// Default largest leaf of [`BuildOptions::leaf_size`].
 pub const DEFAULT_LEAF_SIZE: u32 = 4;
 
-/// A triangle mesh ready for ray queries: the triangles and their wide BVH.
+/// The tree width a build makes when [`BuildOptions::width`] is `None`: 8 where the CPU has
+/// AVX2 (its node test covers eight children per instruction), else 4 (SSE).
+pub fn default_width() -> usize {
+    if crate::trace::traverse::avx2_available() {
+        WIDTH8
+    } else {
+        WIDTH
+    }
+}
+
+/// A triangle mesh ready for ray queries: a copy of the mesh and its wide BVH.
 #[derive(Debug, Clone)]
 pub struct Accel {
     bvh: WideBvh,
-    tris: Vec<[Vec3; 3]>,
-    /// The mesh's triangles as vertex indices (for [`Accel::rebuild`]).
+    vertices: Vec<Vec3>,
     indices: Vec<[u32; 3]>,
-    /// Vertices the indices address.
-    vertex_count: usize,
     opts: BuildOptions,
+    test: NodeTest,
+    scratch4: FastScratch<WIDTH>,
+    scratch8: FastScratch<WIDTH8>,
+    phases: FastTimes,
     pool: Option<Arc<rayon::ThreadPool>>,
 }
 
 impl Accel {
     /// Build over an indexed mesh. Fails on an out-of-range index, a non-finite vertex, an
-    /// empty mesh, an unknown builder or layout, or a tree too deep to trace.
+    /// empty mesh, an unknown builder or layout, a width other than 4 or 8, or a tree too deep
+    /// to trace.
     pub fn build(
         vertices: &[Vec3],
         indices: &[[u32; 3]],
         opts: &BuildOptions,
     ) -> Result<Accel, TraceError> {
-        let mut tris = Vec::with_capacity(indices.len());
-        for (i, t) in indices.iter().enumerate() {
-            let mut v = [Vec3::ZERO; 3];
-            for (k, &ix) in t.iter().enumerate() {
-                v[k] = *vertices.get(ix as usize).ok_or(TraceError::BadIndex {
-                    tri: i,
-                    index: ix,
-                    vertices: vertices.len(),
-                })?;
-            }
-            tris.push(v);
+        let width = opts.width.unwrap_or_else(default_width);
+        if width != WIDTH && width != WIDTH8 {
+            return Err(TraceError::Build(format!(
+                "the tree width must be 4 or 8, not {width}"
+            )));
         }
-        let mut a = Accel::from_triangles(tris, opts)?;
-        a.indices = indices.to_vec();
-        a.vertex_count = vertices.len();
-        Ok(a)
-    }
-
-    /// Rebuild over new positions of the same mesh: `vertices` replaces the vertices of the
-    /// [`Accel::build`] call (same count, same indices; for [`Accel::from_triangles`] the
-    /// vertices are the triangles' corners in order, three per triangle), with the same
-    /// options. Fails, leaving the structure as it was, on a vertex count that differs from
-    /// the build's or on a non-finite vertex.
-    pub fn rebuild(&mut self, vertices: &[Vec3]) -> Result<(), TraceError> {
-        if vertices.len() != self.vertex_count {
-            return Err(TraceError::VertexCount {
-                given: vertices.len(),
-                expected: self.vertex_count,
-            });
-        }
-        let tris: Vec<[Vec3; 3]> = self
-            .indices
-            .iter()
-            .map(|t| t.map(|i| vertices[i as usize]))
-            .collect();
-        let bvh2 = self.run(|| build_bvh2(&tris, &self.opts))?;
-        self.bvh = WideBvh::from_bvh2(&bvh2, &tris)?;
-        self.tris = tris;
-        Ok(())
-    }
-
-    /// Build over a triangle list (triangle id = position in `tris`).
-    pub fn from_triangles(tris: Vec<[Vec3; 3]>, opts: &BuildOptions) -> Result<Accel, TraceError> {
         if opts.threads == Some(0) {
             return Err(TraceError::Build(
                 "the thread count must be at least 1".into(),
@@ -180,59 +158,159 @@ impl Accel {
             )),
             None => None,
         };
-        let bvh2 = match &pool {
-            Some(p) => p.install(|| build_bvh2(&tris, opts))?,
-            None => build_bvh2(&tris, opts)?,
+        let mut a = Accel {
+            bvh: WideBvh::empty(),
+            vertices: Vec::new(),
+            indices: Vec::new(),
+            opts: *opts,
+            test: NodeTest::for_width(width),
+            scratch4: FastScratch::default(),
+            scratch8: FastScratch::default(),
+            phases: FastTimes::default(),
+            pool,
         };
-        let bvh = WideBvh::from_bvh2(&bvh2, &tris)?;
-        Ok(Accel::assemble(bvh, tris, *opts, pool))
+        a.build_over(vertices, indices)?;
+        a.vertices = vertices.to_vec();
+        a.indices = indices.to_vec();
+        a.debug_validate();
+        Ok(a)
     }
 
-    fn assemble(
-        bvh: WideBvh,
-        tris: Vec<[Vec3; 3]>,
-        opts: BuildOptions,
-        pool: Option<Arc<rayon::ThreadPool>>,
-    ) -> Accel {
+    /// Build over a triangle list (triangle id = position in `tris`; the mesh's vertices are
+    /// the corners in order, three per triangle).
+    pub fn from_triangles(tris: Vec<[Vec3; 3]>, opts: &BuildOptions) -> Result<Accel, TraceError> {
+        let vertices: Vec<Vec3> = tris.iter().flatten().copied().collect();
         let n = tris.len() as u32;
-        Accel {
-            bvh,
-            indices: (0..n).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect(),
-            vertex_count: tris.len() * 3,
-            tris,
-            opts,
-            pool,
+        if tris.len() > crate::trace::wide::MAX_TRIANGLES {
+            return Err(TraceError::TooManyTriangles(tris.len()));
+        }
+        let indices: Vec<[u32; 3]> = (0..n).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect();
+        Accel::build(&vertices, &indices, opts)
+    }
+
+    /// Rebuild over new positions of the same mesh: `vertices` replaces the vertices of the
+    /// build (same count, same indices; for [`Accel::from_triangles`] the triangles' corners in
+    /// order), with the same options, reusing the previous build's buffers. Fails, leaving the
+    /// structure as it was, on a vertex count that differs from the build's or on a non-finite
+    /// vertex.
+    pub fn rebuild(&mut self, vertices: &[Vec3]) -> Result<(), TraceError> {
+        if vertices.len() != self.vertices.len() {
+            return Err(TraceError::VertexCount {
+                given: vertices.len(),
+                expected: self.vertices.len(),
+            });
+        }
+        let indices = std::mem::take(&mut self.indices);
+        let r = self.build_over(vertices, &indices);
+        self.indices = indices;
+        r?;
+        self.vertices.copy_from_slice(vertices);
+        self.debug_validate();
+        Ok(())
+    }
+
+    /// Debug builds check every tree they build (see [`WideBvh::validate`]).
+    fn debug_validate(&self) {
+        if cfg!(debug_assertions) {
+            if let Err(e) = self.bvh.validate(self.indices.len(), |i| self.triangle(i)) {
+                panic!("the builder made an invalid tree: {e}");
+            }
         }
     }
 
-    /// Wrap a BVH2 from any builder (validated against `tris`, then collapsed to 4- and 8-wide).
-    /// A later [`Accel::rebuild`] builds with the default options.
+    /// Build `self.bvh` over the mesh with `self.opts`, reusing the buffers held.
+    fn build_over(&mut self, vertices: &[Vec3], indices: &[[u32; 3]]) -> Result<(), TraceError> {
+        let width = self.test.width();
+        let (builder, layout, restructure) = self.opts.resolve();
+        // The radix tree (Karras = Apetrei) without restructuring goes straight to the wide
+        // tree; the other builders make a BVH2 that is then collapsed.
+        let fast = matches!(builder, Builder::Lbvh | Builder::LbvhApetrei)
+            && !restructure
+            && self.opts.leaf_size.is_none_or(|l| l == DEFAULT_LEAF_SIZE);
+        let pool = self.pool.clone();
+        let opts = self.opts;
+        let bvh = &mut self.bvh;
+        let (scratch4, scratch8) = (&mut self.scratch4, &mut self.scratch8);
+        let phases = &mut self.phases;
+        *phases = FastTimes::default();
+        let run = move || -> Result<(), TraceError> {
+            if fast {
+                let times = phases;
+                return if width == WIDTH8 {
+                    let mut nodes = std::mem::take(&mut bvh.nodes8);
+                    let mut packets = std::mem::take(&mut bvh.packets);
+                    let r = build_fast::<WIDTH8>(
+                        vertices,
+                        indices,
+                        &layout,
+                        scratch8,
+                        &mut nodes,
+                        &mut packets,
+                        times,
+                    );
+                    bvh.nodes.clear();
+                    bvh.nodes8 = nodes;
+                    bvh.packets = packets;
+                    r.map(|t| bvh.set_fast(indices.len(), t, WIDTH8))
+                } else {
+                    let mut nodes = std::mem::take(&mut bvh.nodes);
+                    let mut packets = std::mem::take(&mut bvh.packets);
+                    let r = build_fast::<WIDTH>(
+                        vertices,
+                        indices,
+                        &layout,
+                        scratch4,
+                        &mut nodes,
+                        &mut packets,
+                        times,
+                    );
+                    bvh.nodes8.clear();
+                    bvh.nodes = nodes;
+                    bvh.packets = packets;
+                    r.map(|t| bvh.set_fast(indices.len(), t, WIDTH))
+                };
+            }
+            let tris = gather_triangles(vertices, indices)?;
+            let bvh2 = build_bvh2(&tris, &opts)?;
+            *bvh = WideBvh::from_bvh2_width(&bvh2, &tris, width)?;
+            Ok(())
+        };
+        match pool {
+            Some(p) => p.install(run),
+            None => run(),
+        }
+    }
+
+    /// Wrap a BVH2 from any builder (validated against `tris`, then collapsed to the default
+    /// width). A later [`Accel::rebuild`] builds with the default options.
     pub fn from_bvh2(bvh2: &Bvh, tris: Vec<[Vec3; 3]>) -> Result<Accel, TraceError> {
-        let bvh = WideBvh::from_bvh2(bvh2, &tris)?;
-        Ok(Accel::assemble(bvh, tris, BuildOptions::default(), None))
+        let width = default_width();
+        let bvh = WideBvh::from_bvh2_width(bvh2, &tris, width)?;
+        let n = tris.len() as u32;
+        Ok(Accel {
+            bvh,
+            vertices: tris.iter().flatten().copied().collect(),
+            indices: (0..n).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect(),
+            opts: BuildOptions::default(),
+            test: NodeTest::for_width(width),
+            scratch4: FastScratch::default(),
+            scratch8: FastScratch::default(),
+            phases: FastTimes::default(),
+            pool: None,
+        })
     }
 
     /// The closest hit of `ray` in `[tnear, tfar]` (`None` for a miss or an invalid ray:
     /// non-finite or zero direction, NaN interval).
     #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        closest::<false>(
-            &self.bvh,
-            ray,
-            NodeTest::fastest(),
-            &mut TraceStats::default(),
-        )
+        closest::<false>(&self.bvh, ray, self.test, &mut TraceStats::default())
     }
 
     /// True when `ray` hits anything in `[tnear, tfar]`.
     #[inline]
     pub fn occluded(&self, ray: &Ray) -> bool {
-        occluded::<false>(
-            &self.bvh,
-            ray,
-            NodeTest::fastest(),
-            &mut TraceStats::default(),
-        )
+        occluded::<false>(&self.bvh, ray, self.test, &mut TraceStats::default())
     }
 
     /// Closest hits of many rays, in parallel; one answer per ray, in order.
@@ -245,14 +323,39 @@ impl Accel {
         self.run(|| rays.par_iter().map(|r| self.occluded(r)).collect())
     }
 
-    /// The triangles, in id order.
-    pub fn triangles(&self) -> &[[Vec3; 3]] {
-        &self.tris
+    /// Triangle `id`'s corners.
+    #[inline]
+    pub fn triangle(&self, id: u32) -> [Vec3; 3] {
+        self.indices[id as usize].map(|i| self.vertices[i as usize])
+    }
+
+    /// Number of triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.indices.len()
+    }
+
+    /// All triangles in id order (a new list).
+    pub fn triangles(&self) -> Vec<[Vec3; 3]> {
+        self.indices
+            .iter()
+            .map(|t| t.map(|i| self.vertices[i as usize]))
+            .collect()
     }
 
     /// The wide BVH being traced.
     pub fn wide_bvh(&self) -> &WideBvh {
         &self.bvh
+    }
+
+    /// Wall milliseconds of the last build's phases when it took the fast path (the fast
+    /// preset's LBVH straight to the wide tree), else all zero.
+    pub fn build_phases(&self) -> FastTimes {
+        self.phases
+    }
+
+    /// The node test (and so the tree width) queries use.
+    pub fn node_test(&self) -> NodeTest {
+        self.test
     }
 
     fn run<T: Send>(&self, f: impl FnOnce() -> T + Send) -> T {
@@ -263,18 +366,36 @@ impl Accel {
     }
 }
 
+/// The triangles of an indexed mesh (an index naming no vertex is an error).
+fn gather_triangles(vertices: &[Vec3], indices: &[[u32; 3]]) -> Result<Vec<[Vec3; 3]>, TraceError> {
+    let mut tris = Vec::with_capacity(indices.len());
+    for (i, t) in indices.iter().enumerate() {
+        let mut v = [Vec3::ZERO; 3];
+        for (k, &ix) in t.iter().enumerate() {
+            v[k] = *vertices.get(ix as usize).ok_or(TraceError::BadIndex {
+                tri: i,
+                index: ix,
+                vertices: vertices.len(),
+            })?;
+        }
+        tris.push(v);
+    }
+    Ok(tris)
+}
+
 /// The BVH2 a preset and its overrides ask for, built by the LBVH / binned-SAH pipeline.
 pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceError> {
     if tris.is_empty() {
         return Err(TraceError::NoTriangles);
     }
+    // Checked on the corners: a box's min/max can drop a NaN.
+    if let Some(i) = tris.iter().position(|t| !t.iter().all(|v| v.is_finite())) {
+        return Err(TraceError::NonFinite(i));
+    }
     let aabbs: Vec<Aabb> = tris
         .par_iter()
         .map(|t| Aabb::from_triangle(t[0], t[1], t[2]))
         .collect();
-    if let Some(i) = aabbs.iter().position(|b| !b.is_finite()) {
-        return Err(TraceError::NonFinite(i));
-    }
     let (builder, layout, restructure) = opts.resolve();
     let max_leaf = opts.leaf_size.unwrap_or(DEFAULT_LEAF_SIZE);
     if max_leaf == 0 {

@@ -7,6 +7,7 @@ pub mod image;
 pub mod intersect;
 pub mod traverse;
 pub mod wide;
+pub mod wide_lbvh;
 pub mod workload;
 
 pub use api::{Accel, BuildOptions, Preset};

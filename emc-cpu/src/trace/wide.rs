@@ -60,6 +60,39 @@ pub struct TriPacket {
 const _: () = assert!(core::mem::size_of::<TriPacket>() == 176);
 
 impl TriPacket {
+    /// A packet of `count` triangles, all coordinates and ids zero (to be filled in).
+    #[inline(always)]
+    pub fn blank(count: u32, last: bool) -> TriPacket {
+        TriPacket {
+            v: [[0.0; WIDTH]; 9],
+            id: [0; WIDTH],
+            count,
+            last: last as u32,
+            _pad: [0; 2],
+        }
+    }
+
+    /// Packets of four consecutive triangles each (ids = positions in `tris`; the last packet
+    /// pads with its last triangle), every packet marked as its leaf's last.
+    pub fn of_triangles(tris: &[[Vec3; 3]]) -> Vec<TriPacket> {
+        tris.chunks(WIDTH)
+            .enumerate()
+            .map(|(c, chunk)| {
+                let mut p = TriPacket::blank(chunk.len() as u32, true);
+                for lane in 0..WIDTH {
+                    let k = lane.min(chunk.len() - 1);
+                    for (j, v) in chunk[k].iter().enumerate() {
+                        p.v[3 * j][lane] = v.x;
+                        p.v[3 * j + 1][lane] = v.y;
+                        p.v[3 * j + 2][lane] = v.z;
+                    }
+                    p.id[lane] = (c * WIDTH + k) as u32;
+                }
+                p
+            })
+            .collect()
+    }
+
     /// The vertices of lane `lane` as the scalar triangle test takes them.
     #[inline(always)]
     pub fn lane(&self, lane: usize) -> [[f32; 3]; 3] {
@@ -110,7 +143,9 @@ impl<const W: usize> WideNodeN<W> {
         }
     }
 
-    fn set(&mut self, lane: usize, b: &Aabb, code: u32, pad: f32) {
+    /// Make lane `lane` the child `code` with box `b` grown by `pad` on every side.
+    #[inline(always)]
+    pub fn set(&mut self, lane: usize, b: &Aabb, code: u32, pad: f32) {
         let (lo, hi) = ((b.min - pad).to_array(), (b.max + pad).to_array());
         for a in 0..3 {
             self.planes[2 * a][lane] = lo[a];
@@ -161,6 +196,69 @@ impl WideBvh {
     /// and leaves of whole subtrees (see `Plan`); the 4-wide tree is the optimal cover with
     /// up to four children over the same leaves.
     pub fn from_bvh2(bvh: &Bvh, tris: &[[Vec3; 3]]) -> Result<WideBvh, TraceError> {
+        WideBvh::collapse_bvh2(bvh, tris, true, true)
+    }
+
+    /// [`WideBvh::from_bvh2`] building only the tree of `width` (4 or 8; any other value
+    /// builds both), as a traced structure needs; the other tree is left empty.
+    pub fn from_bvh2_width(
+        bvh: &Bvh,
+        tris: &[[Vec3; 3]],
+        width: usize,
+    ) -> Result<WideBvh, TraceError> {
+        match width {
+            WIDTH => WideBvh::collapse_bvh2(bvh, tris, true, false),
+            WIDTH8 => WideBvh::collapse_bvh2(bvh, tris, false, true),
+            _ => WideBvh::collapse_bvh2(bvh, tris, true, true),
+        }
+    }
+
+    /// A structure with no tree (traces nothing).
+    pub fn empty() -> WideBvh {
+        WideBvh {
+            nodes: Vec::new(),
+            nodes8: Vec::new(),
+            packets: Vec::new(),
+            triangles: 0,
+            max_abs: 0.0,
+            depth: 0,
+            depth8: 0,
+            leaves: 0,
+        }
+    }
+
+    /// Record what the fast builder made: `width`'s tree over `triangles` triangles.
+    pub(crate) fn set_fast(
+        &mut self,
+        triangles: usize,
+        t: crate::trace::wide_lbvh::FastTree,
+        width: usize,
+    ) {
+        self.triangles = triangles;
+        self.max_abs = t.max_abs;
+        self.leaves = t.leaves;
+        if width == WIDTH8 {
+            (self.depth, self.depth8) = (0, t.depth);
+        } else {
+            (self.depth, self.depth8) = (t.depth, 0);
+        }
+    }
+
+    /// Width of the tree a traversal uses by default: 8 when the 8-wide tree exists, else 4.
+    pub fn width(&self) -> usize {
+        if self.nodes8.is_empty() {
+            WIDTH
+        } else {
+            WIDTH8
+        }
+    }
+
+    fn collapse_bvh2(
+        bvh: &Bvh,
+        tris: &[[Vec3; 3]],
+        four: bool,
+        eight: bool,
+    ) -> Result<WideBvh, TraceError> {
         if tris.is_empty() {
             return Err(TraceError::NoTriangles);
         }
@@ -185,21 +283,49 @@ impl WideBvh {
         // inside. It covers origins no farther from 0 than the geometry (then |o| ≤ M).
         let pad = max_abs * (1.0 / 65536.0);
         let mut packets = Vec::with_capacity(tris.len() / 2);
+        let mut leaves = 0;
+        let mut prims = Vec::new();
+        if !eight {
+            // The 4-wide tree alone chooses its leaves.
+            let plan4 = Plan::<WIDTH>::new(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false);
+            let (nodes, depth) = collapse::<WIDTH>(bvh, &plan4, pad, |n| {
+                leaves += 1;
+                emit_leaf(&mut packets, &mut prims, bvh, n, tris)
+            })?;
+            return Ok(WideBvh {
+                nodes,
+                nodes8: Vec::new(),
+                packets,
+                triangles: tris.len(),
+                max_abs,
+                depth,
+                depth8: 0,
+                leaves,
+            });
+        }
         // The 8-wide tree chooses the leaves (and emits their packets in its depth-first
         // order); the 4-wide tree is planned over exactly those leaves and shares them.
         let plan8 = Plan::<WIDTH8>::new(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false);
-        let mut leaf_codes = vec![EMPTY; bvh.nodes.len()];
-        let mut leaves = 0;
-        let mut prims = Vec::new();
+        let mut leaf_codes = if four {
+            vec![EMPTY; bvh.nodes.len()]
+        } else {
+            Vec::new()
+        };
         let (nodes8, depth8) = collapse::<WIDTH8>(bvh, &plan8, pad, |n| {
             let code = emit_leaf(&mut packets, &mut prims, bvh, n, tris);
-            leaf_codes[n as usize] = code;
+            if four {
+                leaf_codes[n as usize] = code;
+            }
             leaves += 1;
             code
         })?;
         drop(plan8);
-        let plan4 = Plan::<WIDTH>::new(bvh, |_, _| false, |n| leaf_codes[n as usize] != EMPTY);
-        let (nodes, depth) = collapse::<WIDTH>(bvh, &plan4, pad, |n| leaf_codes[n as usize])?;
+        let (nodes, depth) = if four {
+            let plan4 = Plan::<WIDTH>::new(bvh, |_, _| false, |n| leaf_codes[n as usize] != EMPTY);
+            collapse::<WIDTH>(bvh, &plan4, pad, |n| leaf_codes[n as usize])?
+        } else {
+            (Vec::new(), 0)
+        };
         Ok(WideBvh {
             nodes,
             nodes8,
@@ -215,6 +341,207 @@ impl WideBvh {
     /// Number of triangles.
     pub fn triangle_count(&self) -> usize {
         self.triangles
+    }
+
+    /// SAH cost of the traced tree, relative to its root box: `Σ A(node) + Σ A(leaf) · packets`
+    /// over wide nodes and leaves (`A`: half area of the box a parent holds for it, the root's
+    /// being the union of its children), the model the collapse optimises (a node test and a
+    /// packet test cost 1 per unit of area).
+    pub fn sah(&self) -> f64 {
+        fn walk<const W: usize>(w: &WideBvh, nodes: &[WideNodeN<W>]) -> f64 {
+            if nodes.is_empty() {
+                return 0.0;
+            }
+            let root = &nodes[0];
+            let rb = (0..W).fold(Aabb::EMPTY, |b, l| {
+                if root.child[l] == EMPTY {
+                    b
+                } else {
+                    b.union(&root.child_box(l))
+                }
+            });
+            let ra = half_area(&rb) as f64;
+            let mut total = ra;
+            let mut stack = vec![0u32];
+            while let Some(i) = stack.pop() {
+                let n = &nodes[i as usize];
+                for l in 0..W {
+                    let c = n.child[l];
+                    if c == EMPTY {
+                        continue;
+                    }
+                    let a = half_area(&n.child_box(l)) as f64;
+                    if c & LEAF != 0 {
+                        let mut pi = (c & !LEAF) as usize;
+                        let mut k = 1;
+                        while w.packets[pi].last == 0 {
+                            pi += 1;
+                            k += 1;
+                        }
+                        total += a * k as f64;
+                    } else {
+                        total += a;
+                        stack.push(c);
+                    }
+                }
+            }
+            if ra > 0.0 {
+                total / ra
+            } else {
+                0.0
+            }
+        }
+        if self.nodes8.is_empty() {
+            walk(self, &self.nodes)
+        } else {
+            walk(self, &self.nodes8)
+        }
+    }
+
+    /// Check the traced tree against the triangles it was built over (`tri(id)`: the corners
+    /// of triangle `id`, `count` of them): every triangle in exactly one leaf lane with its
+    /// exact corners, packets well formed, every child box containing its subtree's
+    /// triangles, no node reached twice or left unreached, depth and leaf count as recorded.
+    /// The tests and debug builds run it on every build; a release build trusts the builder.
+    pub fn validate(&self, count: usize, tri: impl Fn(u32) -> [Vec3; 3]) -> Result<(), String> {
+        fn walk<const W: usize>(
+            w: &WideBvh,
+            nodes: &[WideNodeN<W>],
+            count: usize,
+            tri: &dyn Fn(u32) -> [Vec3; 3],
+            recorded_depth: usize,
+        ) -> Result<(), String> {
+            if nodes.is_empty() {
+                return Err("no root node".into());
+            }
+            // (node, depth); boxes are checked per lane against the subtree's exact bounds,
+            // computed by a second, post-order walk.
+            fn subtree<const W: usize>(
+                w: &WideBvh,
+                nodes: &[WideNodeN<W>],
+                code: u32,
+                d: usize,
+                st: &mut (Vec<bool>, Vec<bool>, usize, usize),
+                count: usize,
+                tri: &dyn Fn(u32) -> [Vec3; 3],
+            ) -> Result<Aabb, String> {
+                if code & LEAF != 0 {
+                    st.2 += 1;
+                    let mut pi = (code & !LEAF) as usize;
+                    let mut b = Aabb::EMPTY;
+                    loop {
+                        let p = w
+                            .packets
+                            .get(pi)
+                            .ok_or(format!("leaf {code:#x}: packet {pi} missing"))?;
+                        if p.count == 0 || p.count as usize > WIDTH {
+                            return Err(format!("packet {pi}: {} triangles", p.count));
+                        }
+                        for lane in 0..WIDTH {
+                            let real = lane.min(p.count as usize - 1);
+                            let id = p.id[lane];
+                            if id != p.id[real] {
+                                return Err(format!(
+                                    "packet {pi}: spare lane {lane} is not a copy"
+                                ));
+                            }
+                            if lane >= p.count as usize {
+                                continue;
+                            }
+                            if id as usize >= count {
+                                return Err(format!("packet {pi}: triangle {id} of {count}"));
+                            }
+                            if std::mem::replace(&mut st.1[id as usize], true) {
+                                return Err(format!("triangle {id} is in two leaves"));
+                            }
+                            let t = tri(id);
+                            let got = p.lane(lane);
+                            for (j, v) in t.iter().enumerate() {
+                                if v.to_array().map(f32::to_bits) != got[j].map(f32::to_bits) {
+                                    return Err(format!(
+                                        "packet {pi}: triangle {id} corner {j} differs"
+                                    ));
+                                }
+                                b.grow(*v);
+                            }
+                        }
+                        if p.last != 0 {
+                            break;
+                        }
+                        pi += 1;
+                    }
+                    return Ok(b);
+                }
+                let i = code as usize;
+                if i >= nodes.len() {
+                    return Err(format!("child {i} outside the {} nodes", nodes.len()));
+                }
+                if std::mem::replace(&mut st.0[i], true) {
+                    return Err(format!("node {i} is reached twice"));
+                }
+                st.3 = st.3.max(d);
+                if d > MAX_DEPTH {
+                    return Err(format!("depth {d} exceeds {MAX_DEPTH}"));
+                }
+                let n = &nodes[i];
+                let mut total = Aabb::EMPTY;
+                let mut used = 0;
+                for lane in 0..W {
+                    let c = n.child[lane];
+                    let lb = n.child_box(lane);
+                    if c == EMPTY {
+                        if lb.min.cmple(lb.max).any() {
+                            return Err(format!("node {i}: unused lane {lane} has a box"));
+                        }
+                        continue;
+                    }
+                    used += 1;
+                    let sb = subtree(w, nodes, c, d + 1, st, count, tri)?;
+                    if !lb.contains(&sb) {
+                        return Err(format!("node {i} lane {lane}: box {lb:?} misses {sb:?}"));
+                    }
+                    total = total.union(&sb);
+                }
+                if used == 0 {
+                    return Err(format!("node {i} has no child"));
+                }
+                Ok(total)
+            }
+            let mut st = (vec![false; nodes.len()], vec![false; count], 0usize, 0usize);
+            subtree(w, nodes, 0, 0, &mut st, count, tri)?;
+            let (seen_node, seen_tri, leaves, depth) = st;
+            // Nodes nobody refers to are allowed only when empty (reserved, unused).
+            if let Some(i) = seen_node
+                .iter()
+                .position(|&s| !s)
+                .filter(|&i| nodes[i].child.iter().any(|&c| c != EMPTY))
+            {
+                return Err(format!("node {i} is not reachable from the root"));
+            }
+            if let Some(t) = seen_tri.iter().position(|&s| !s) {
+                return Err(format!("triangle {t} is in no leaf"));
+            }
+            if leaves != w.leaves {
+                return Err(format!("{leaves} leaves, {} recorded", w.leaves));
+            }
+            if depth != recorded_depth {
+                return Err(format!("depth {depth}, {recorded_depth} recorded"));
+            }
+            Ok(())
+        }
+        if count != self.triangles {
+            return Err(format!("{count} triangles given, {} built", self.triangles));
+        }
+        if !self.nodes8.is_empty() {
+            walk(self, &self.nodes8, count, &tri, self.depth8)?;
+        }
+        if !self.nodes.is_empty() {
+            walk(self, &self.nodes, count, &tri, self.depth)?;
+        }
+        if self.nodes.is_empty() && self.nodes8.is_empty() {
+            return Err("no tree".into());
+        }
+        Ok(())
     }
 
     /// Bytes of nodes and triangle data.

@@ -1,0 +1,927 @@
+//! The fast preset's builder: triangles → codes → radix sort → a `W`-wide BVH made straight
+//! from the sorted codes, in the core's cache, leaf packets written as leaves are finalised and
+//! every box computed once. No binary tree of the whole scene is stored.
+//!
+//! ```text
+//!   1. partition  the LBVH radix tree's top (Karras 2012: a range splits at the highest bit in
+//!                 which its first and last codes differ, found by binary search) down to
+//!                 blocks of at most BLOCK primitives; topology only
+//!   2. blocks     in code order, each in cache: gather its triangles, sweep its binary radix
+//!                 tree left to right (boxes, SAH leaf decisions), open it into wide nodes
+//!                 (inner children by largest area, then the leaves whose halves save most)
+//!                 and write nodes and packets
+//!   3. top        the SAH-optimal cover of the top tree by W-wide nodes (the DP of wide.rs),
+//!                 the blocks' roots as fixed children; its root is node 0, the rest follow
+//!                 the blocks' nodes
+//! ```
+//!
+//! Packets come out in code order (leaf after leaf), nodes depth-first within each block.
+#![forbid(unsafe_code)]
+
+use emc_core::Aabb;
+use glam::{Vec3, Vec3A};
+
+use crate::sort::RadixKey;
+use crate::trace::wide::{TriPacket, WideNodeN, EMPTY, LEAF, MAX_DEPTH, WIDTH};
+use crate::trace::TraceError;
+
+/// Ranges of at most this many primitives are built as one block, in the core's cache.
+pub const BLOCK: u32 = 1024;
+
+/// Largest leaf: two triangle packets.
+pub const LEAF_MAX: u32 = 2 * WIDTH as u32;
+
+/// Cost of testing a wide node, per unit of its half area (as in the SAH collapse of
+/// `wide.rs`).
+const COST_NODE: f32 = 1.0;
+/// Cost of testing one triangle packet, per unit of its leaf's half area.
+const COST_PACKET: f32 = 1.0;
+/// What keeping a subtree of at most [`LEAF_MAX`] primitives open (instead of one leaf) is
+/// charged per unit of its area: such a subtree often ends as a wide node of its own.
+const COST_SMALL_SPLIT: f32 = 0.5;
+/// What one larger binary split is charged per unit of its area: a wide node of `W` children
+/// stands for `W − 1` splits (`COST_NODE / 7` for eight children).
+const COST_SPLIT: f32 = COST_NODE / 7.0;
+
+/// Read-only inputs of the build.
+#[derive(Debug)]
+pub struct Inputs<'a, K> {
+    /// Codes in sorted order.
+    pub keys: &'a [K],
+    /// `ids[p]`: the triangle at sorted position `p`.
+    pub ids: &'a [u32],
+    /// Mesh vertices.
+    pub vertices: &'a [Vec3],
+    /// Mesh triangles (validated: every index names a vertex).
+    pub indices: &'a [[u32; 3]],
+    /// Child box padding (see `WideBvh::from_bvh2`).
+    pub pad: f32,
+}
+
+/// Output buffers of the build (appended to).
+#[derive(Debug)]
+pub struct Outputs<'a, const W: usize> {
+    /// Wide nodes: the root, every block's nodes depth-first, then the top's other nodes.
+    pub nodes: &'a mut Vec<WideNodeN<W>>,
+    /// Triangle packets in leaf order.
+    pub packets: &'a mut Vec<TriPacket>,
+    /// Leaves written.
+    pub leaves: usize,
+    /// Scratch of the block builder.
+    pub block: &'a mut BlockScratch,
+}
+
+/// One node of a block's binary radix tree (post-order: children before parents).
+#[derive(Clone, Copy, Debug)]
+struct BNode {
+    /// Box (SIMD lanes: one `minps` / `maxps` per union).
+    lo: Vec3A,
+    hi: Vec3A,
+    /// Children (binary node indices; unused for a primitive).
+    left: u32,
+    right: u32,
+    /// First local position.
+    first: u32,
+    /// Number of primitives.
+    count: u32,
+    /// Half area of `bx`.
+    area: f32,
+    /// SAH cost of the subtree as the leaf decisions price it.
+    cost: f32,
+    /// The subtree is one leaf.
+    leaf: bool,
+}
+
+const NO_NODE: BNode = BNode {
+    lo: Vec3A::INFINITY,
+    hi: Vec3A::NEG_INFINITY,
+    left: 0,
+    right: 0,
+    first: 0,
+    count: 0,
+    area: 0.0,
+    cost: 0.0,
+    leaf: true,
+};
+
+/// Buffers of the block builder (kept between blocks and builds).
+#[derive(Clone, Debug, Default)]
+pub struct BlockScratch {
+    /// The block's triangles in sorted order.
+    tris: Vec<[Vec3A; 3]>,
+    /// Binary nodes (`2 · BLOCK − 1` slots, written by index).
+    nodes: Vec<BNode>,
+    /// The sweep's open subtrees: (node, level of its right boundary).
+    stack: Vec<(u32, u32)>,
+}
+
+/// A finished block: its root as a child of a wide node.
+#[derive(Clone, Copy, Debug)]
+struct Fixed {
+    /// Child code (a leaf, or the block's first wide node).
+    code: u32,
+    /// Unpadded box.
+    bx: Aabb,
+    /// SAH cost of the block's wide subtree (node areas, leaf areas times packets).
+    cost: f32,
+    /// Wide levels below the block's root (0 for a leaf, 1 for a node of leaves).
+    height: usize,
+}
+
+/// Flag of a reference to a block in the top tree (else: a top node).
+const REF_FLAG: u32 = 1 << 31;
+
+/// A node of the top tree (above the blocks), post-order: its children's references.
+#[derive(Clone, Copy, Debug)]
+struct TopNode {
+    left: u32,
+    right: u32,
+}
+
+impl<K: RadixKey> Inputs<'_, K> {
+    /// Where `[b, e)` (at least two primitives) splits: the first position whose code has the
+    /// highest bit set in which the first and last codes differ; the middle when they agree.
+    #[inline(always)]
+    fn split(&self, b: u32, e: u32) -> u32 {
+        let x = self.keys[b as usize].widen() ^ self.keys[e as usize - 1].widen();
+        if x == 0 {
+            return b + (e - b) / 2;
+        }
+        let bit = 1u64 << (63 - x.leading_zeros());
+        let (mut lo, mut hi) = (b + 1, e - 1);
+        // Invariant: keys[lo - 1] has the bit clear, keys[hi] has it set.
+        while lo < hi {
+            let mid = lo + (hi - lo) / 2;
+            if self.keys[mid as usize].widen() & bit != 0 {
+                hi = mid;
+            } else {
+                lo = mid + 1;
+            }
+        }
+        lo
+    }
+
+    /// Level of the split between sorted positions `p` and `p + 1`, over the index-augmented
+    /// key (`K::BITS` key bits above 32 position bits):
+    ///
+    /// ```text
+    ///   level(p) = 32 + (63 − clz64(k_p ⊕ k_{p+1}))   if the keys differ
+    ///            = 31 − clz32(p ⊕ (p + 1))            if they are equal
+    /// ```
+    /// The radix tree is the Cartesian tree of these levels (two equal levels always have a
+    /// higher one between them). Equal codes split at the highest position bit that changes,
+    /// as Karras' tree does; [`Inputs::split`] above the blocks splits them in the middle.
+    #[inline(always)]
+    fn level_at(&self, p: u32) -> u32 {
+        let x = self.keys[p as usize].widen() ^ self.keys[p as usize + 1].widen();
+        if x != 0 {
+            32 + (63 - x.leading_zeros())
+        } else {
+            31 - (p ^ (p + 1)).leading_zeros()
+        }
+    }
+}
+
+/// Step 1: split `[b, e)` down to blocks (appended to `blocks` in order), recording the top
+/// nodes (post-order); returns the reference of `[b, e)`.
+fn partition<K: RadixKey>(
+    inp: &Inputs<'_, K>,
+    b: u32,
+    e: u32,
+    blocks: &mut Vec<(u32, u32)>,
+    top: &mut Vec<TopNode>,
+) -> u32 {
+    if e - b <= BLOCK {
+        blocks.push((b, e));
+        return REF_FLAG | (blocks.len() as u32 - 1);
+    }
+    let s = inp.split(b, e);
+    let left = partition(inp, b, s, blocks, top);
+    let right = partition(inp, s, e, blocks, top);
+    top.push(TopNode { left, right });
+    top.len() as u32 - 1
+}
+
+/// Step 2: build block `[b, e)` (1 ≤ e − b ≤ [`BLOCK`]): gather its triangles, sweep its
+/// binary radix tree with boxes and leaf decisions, then write its wide nodes and packets.
+fn build_block<K: RadixKey, const W: usize>(
+    inp: &Inputs<'_, K>,
+    b: u32,
+    e: u32,
+    out: &mut Outputs<'_, W>,
+) -> Fixed {
+    let m = (e - b) as usize;
+    let s = &mut *out.block;
+    if s.nodes.len() < 2 * BLOCK as usize {
+        s.nodes.resize(2 * BLOCK as usize, NO_NODE);
+        s.tris.resize(BLOCK as usize, [Vec3A::ZERO; 3]);
+    }
+    let ids = &inp.ids[b as usize..e as usize];
+    for (t, &id) in s.tris[..m].iter_mut().zip(ids) {
+        *t = inp.indices[id as usize].map(|i| Vec3A::from(inp.vertices[i as usize]));
+    }
+    // The sweep: left to right, every primitive a leaf node; an open subtree on the stack is
+    // merged with the current one while its right boundary's level is below the current one's.
+    s.stack.clear();
+    let mut next = 0usize;
+    for p in 0..m {
+        let t = &s.tris[p];
+        let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
+        let area = half_area_a(lo, hi);
+        let mut cur = next as u32;
+        s.nodes[next] = BNode {
+            lo,
+            hi,
+            left: 0,
+            right: 0,
+            first: p as u32,
+            count: 1,
+            area,
+            cost: COST_PACKET * area,
+            leaf: true,
+        };
+        next += 1;
+        let lvl = if p + 1 < m {
+            inp.level_at(b + p as u32)
+        } else {
+            u32::MAX
+        };
+        while let Some(&(top, tl)) = s.stack.last() {
+            if tl >= lvl {
+                break;
+            }
+            s.stack.pop();
+            s.nodes[next] = merge(&s.nodes[top as usize], &s.nodes[cur as usize], top, cur);
+            cur = next as u32;
+            next += 1;
+        }
+        s.stack.push((cur, lvl));
+    }
+    let root = s.stack[0].0;
+    let rn = s.nodes[root as usize];
+    let bx = rn.aabb();
+    if rn.leaf {
+        let (code, cost) = emit_leaf(out, ids, rn.first, rn.count, rn.area);
+        return Fixed {
+            code,
+            bx,
+            cost,
+            height: 0,
+        };
+    }
+    let (code, cost, height) = emit_wide(inp, out, ids, root);
+    Fixed {
+        code,
+        bx,
+        cost,
+        height,
+    }
+}
+
+/// The inner node over subtrees `a` (node `l`) and `c` (node `r`): its box and leaf decision.
+#[inline(always)]
+fn merge(a: &BNode, c: &BNode, l: u32, r: u32) -> BNode {
+    let (lo, hi) = (a.lo.min(c.lo), a.hi.max(c.hi));
+    let area = half_area_a(lo, hi);
+    let count = a.count + c.count;
+    let (leaf, cost) = if count <= LEAF_MAX {
+        let leaf_cost = COST_PACKET * area * count.div_ceil(WIDTH as u32) as f32;
+        let split = COST_SMALL_SPLIT * area + a.cost + c.cost;
+        (leaf_cost <= split, leaf_cost.min(split))
+    } else {
+        (false, COST_SPLIT * area + a.cost + c.cost)
+    };
+    BNode {
+        lo,
+        hi,
+        left: l,
+        right: r,
+        first: a.first,
+        count,
+        area,
+        cost,
+        leaf,
+    }
+}
+
+impl BNode {
+    /// The box as the wide nodes store it.
+    #[inline(always)]
+    fn aabb(&self) -> Aabb {
+        Aabb::new(self.lo.into(), self.hi.into())
+    }
+}
+
+/// Half the surface area of the box `[lo, hi]`.
+#[inline(always)]
+fn half_area_a(lo: Vec3A, hi: Vec3A) -> f32 {
+    let e = hi - lo;
+    (e * Vec3A::new(e.y, e.z, e.x)).element_sum()
+}
+
+/// Half the surface area of `b`.
+#[inline(always)]
+fn half_area(b: &Aabb) -> f32 {
+    let e = b.max - b.min;
+    e.x * e.y + e.y * e.z + e.z * e.x
+}
+
+/// Write the packets of the block's leaf at local positions `[first, first + count)` (half
+/// area `area`; `ids`: the block's triangle ids); returns its child code and SAH cost.
+#[inline(always)]
+fn emit_leaf<const W: usize>(
+    out: &mut Outputs<'_, W>,
+    ids: &[u32],
+    first: u32,
+    count: u32,
+    area: f32,
+) -> (u32, f32) {
+    let code = LEAF | out.packets.len() as u32;
+    let (f, c) = (first as usize, count as usize);
+    let tris = &out.block.tris[f..f + c];
+    let ids = &ids[f..f + c];
+    let k = c.div_ceil(WIDTH);
+    for j in 0..k {
+        let lo = j * WIDTH;
+        let real = (c - lo).min(WIDTH);
+        let mut p = TriPacket::blank(real as u32, j + 1 == k);
+        for lane in 0..WIDTH {
+            let q = lo + lane.min(real - 1);
+            for (v, corner) in tris[q].iter().enumerate() {
+                let corner = Vec3::from(*corner);
+                p.v[3 * v][lane] = corner.x;
+                p.v[3 * v + 1][lane] = corner.y;
+                p.v[3 * v + 2][lane] = corner.z;
+            }
+            p.id[lane] = ids[q];
+        }
+        out.packets.push(p);
+    }
+    out.leaves += 1;
+    (code, COST_PACKET * area * k as f32)
+}
+
+/// Write the wide node made of the block's inner binary node `bn` and its subtree: its
+/// children come from opening the largest inner child until there are `W` (an inner child
+/// left over would cost a wide node of its own), then, with lanes to spare, the leaves whose
+/// two halves cost least against them. Returns its code (node index), SAH cost and height.
+fn emit_wide<K: RadixKey, const W: usize>(
+    inp: &Inputs<'_, K>,
+    out: &mut Outputs<'_, W>,
+    ids: &[u32],
+    bn: u32,
+) -> (u32, f32, usize) {
+    let me = out.nodes.len();
+    out.nodes.push(WideNodeN::empty());
+    let nodes = &out.block.nodes;
+    let root = &nodes[bn as usize];
+    let mut kids = [0u32; W];
+    kids[0] = root.left;
+    kids[1] = root.right;
+    let mut n = 2;
+    while n < W {
+        let mut best = usize::MAX;
+        let mut area = -1.0f32;
+        let mut gain = 0.0f32;
+        for (i, &k) in kids[..n].iter().enumerate() {
+            let kn = &nodes[k as usize];
+            if !kn.leaf {
+                if kn.area > area {
+                    area = kn.area;
+                    best = i;
+                }
+            } else if area < 0.0 && kn.count > 1 {
+                let g = kn.cost - nodes[kn.left as usize].cost - nodes[kn.right as usize].cost;
+                if g > gain {
+                    gain = g;
+                    best = i;
+                }
+            }
+        }
+        if best == usize::MAX {
+            break;
+        }
+        let k = &nodes[kids[best] as usize];
+        let (l, r) = (k.left, k.right);
+        kids.copy_within(best + 1..n, best + 2);
+        kids[best] = l;
+        kids[best + 1] = r;
+        n += 1;
+    }
+    let mut node = WideNodeN::<W>::empty();
+    let mut cost = COST_NODE * root.area;
+    let mut height = 1;
+    for (lane, &k) in kids[..n].iter().enumerate() {
+        let kn = out.block.nodes[k as usize];
+        let code = if kn.leaf {
+            let (code, c) = emit_leaf(out, ids, kn.first, kn.count, kn.area);
+            cost += c;
+            code
+        } else {
+            let (code, c, h) = emit_wide(inp, out, ids, k);
+            cost += c;
+            height = height.max(h + 1);
+            code
+        };
+        node.set(lane, &kn.aabb(), code, inp.pad);
+    }
+    out.nodes[me] = node;
+    (me as u32, cost, height)
+}
+
+/// The SAH-optimal cover of the top tree by `W`-wide nodes (as `Plan` in `wide.rs`, the
+/// blocks as children that cannot be opened): `cost[n][i − 1]` is node `n`'s cheapest cover
+/// by `i` children, `split[n][j − 1]` the slots its left child gets in the best of `j`.
+struct TopPlan<const W: usize> {
+    cost: Vec<[f32; W]>,
+    split: Vec<[u8; W]>,
+    bx: Vec<Aabb>,
+}
+
+impl<const W: usize> TopPlan<W> {
+    fn new(top: &[TopNode], blocks: &[Fixed]) -> TopPlan<W> {
+        let mut plan = TopPlan {
+            cost: Vec::with_capacity(top.len()),
+            split: Vec::with_capacity(top.len()),
+            bx: Vec::with_capacity(top.len()),
+        };
+        // Post-order: children first.
+        for t in top {
+            let (cl, bl) = plan.of(t.left, blocks);
+            let (cr, br) = plan.of(t.right, blocks);
+            let bx = bl.union(&br);
+            let mut dist = [f32::INFINITY; W];
+            let mut split = [0u8; W];
+            for j in 2..=W {
+                for k in 1..j {
+                    let c = cl[k - 1] + cr[j - k - 1];
+                    if c < dist[j - 1] {
+                        dist[j - 1] = c;
+                        split[j - 1] = k as u8;
+                    }
+                }
+            }
+            let mut cost = [0.0f32; W];
+            cost[0] = COST_NODE * half_area(&bx) + dist[W - 1];
+            for j in 2..=W {
+                cost[j - 1] = cost[j - 2].min(dist[j - 1]);
+            }
+            plan.cost.push(cost);
+            plan.split.push(split);
+            plan.bx.push(bx);
+        }
+        plan
+    }
+
+    /// Cost row and box of a reference.
+    fn of(&self, r: u32, blocks: &[Fixed]) -> ([f32; W], Aabb) {
+        if r & REF_FLAG != 0 {
+            let b = &blocks[(r & !REF_FLAG) as usize];
+            ([b.cost; W], b.bx)
+        } else {
+            (self.cost[r as usize], self.bx[r as usize])
+        }
+    }
+
+    /// The references that become the children of the wide node made of top node `n`.
+    fn children(&self, top: &[TopNode], n: u32, out: &mut Vec<u32>) {
+        out.clear();
+        let t = top[n as usize];
+        let k = self.split[n as usize][W - 1] as usize;
+        let mut todo: Vec<(u32, usize)> = vec![(t.right, W - k), (t.left, k)];
+        while let Some((m, mut i)) = todo.pop() {
+            if m & REF_FLAG != 0 {
+                out.push(m);
+                continue;
+            }
+            let c = &self.cost[m as usize];
+            // Fewer slots at the same cost: use fewer (ties go to the smaller cover).
+            while i > 1 && c[i - 1] == c[i - 2] {
+                i -= 1;
+            }
+            if i == 1 {
+                out.push(m);
+            } else {
+                let mt = top[m as usize];
+                let k = self.split[m as usize][i - 1] as usize;
+                todo.push((mt.right, i - k));
+                todo.push((mt.left, k));
+            }
+        }
+    }
+}
+
+/// Step 3: write the wide node of top node `n` into `slot` (node 0 for the root, else
+/// appended) and the top subtree below it; returns the deepest level a block reaches below.
+#[allow(clippy::too_many_arguments)]
+fn emit_top<const W: usize>(
+    top: &[TopNode],
+    plan: &TopPlan<W>,
+    blocks: &[Fixed],
+    n: u32,
+    slot: usize,
+    depth: usize,
+    nodes: &mut Vec<WideNodeN<W>>,
+    pad: f32,
+) -> usize {
+    let mut kids = Vec::with_capacity(W);
+    plan.children(top, n, &mut kids);
+    let mut node = WideNodeN::<W>::empty();
+    let mut deepest = depth;
+    for (lane, &r) in kids.iter().enumerate() {
+        if r & REF_FLAG != 0 {
+            let f = &blocks[(r & !REF_FLAG) as usize];
+            node.set(lane, &f.bx, f.code, pad);
+            deepest = deepest.max(depth + f.height);
+        } else {
+            let at = nodes.len();
+            nodes.push(WideNodeN::empty());
+            let d = emit_top(top, plan, blocks, r, at, depth + 1, nodes, pad);
+            node.set(lane, &plan.bx[r as usize], at as u32, pad);
+            deepest = deepest.max(d);
+        }
+    }
+    nodes[slot] = node;
+    deepest
+}
+
+/// Build the whole tree over `inp` (at least one primitive) into `out` (emptied first);
+/// returns its depth.
+pub fn build_tree<K: RadixKey, const W: usize>(
+    inp: &Inputs<'_, K>,
+    out: &mut Outputs<'_, W>,
+    groups: &mut Vec<GroupOut<W>>,
+) -> Result<usize, TraceError> {
+    out.nodes.clear();
+    out.packets.clear();
+    out.leaves = 0;
+    let n = inp.keys.len() as u32;
+    let mut ranges = Vec::with_capacity((n / BLOCK) as usize * 2 + 1);
+    let mut top = Vec::with_capacity(ranges.capacity());
+    let root = partition(inp, 0, n, &mut ranges, &mut top);
+    if root & REF_FLAG != 0 {
+        // One block: its root node is node 0, or a root with one lane holds its leaf.
+        let f = build_block(inp, 0, n, out);
+        if f.code & LEAF != 0 {
+            let mut node = WideNodeN::<W>::empty();
+            node.set(0, &f.bx, f.code, inp.pad);
+            out.nodes.push(node);
+        }
+        return Ok(f.height.saturating_sub(1));
+    }
+    // Node 0 is kept for the root.
+    out.nodes.push(WideNodeN::empty());
+    let blocks = if rayon::current_num_threads() > 1 && ranges.len() > 1 {
+        build_blocks_parallel(inp, &ranges, out, groups)
+    } else {
+        let mut blocks = Vec::with_capacity(ranges.len());
+        for &(b, e) in &ranges {
+            blocks.push(build_block(inp, b, e, out));
+        }
+        blocks
+    };
+    let plan = TopPlan::<W>::new(&top, &blocks);
+    let depth = emit_top(&top, &plan, &blocks, root, 0, 0, out.nodes, inp.pad);
+    if depth > MAX_DEPTH {
+        return Err(TraceError::TooDeep {
+            depth,
+            max: MAX_DEPTH,
+        });
+    }
+    Ok(depth)
+}
+
+/// The output of one group of consecutive blocks, built on its own (node and packet indices
+/// local to the group until they are placed).
+#[derive(Clone, Debug, Default)]
+pub struct GroupOut<const W: usize> {
+    nodes: Vec<WideNodeN<W>>,
+    packets: Vec<TriPacket>,
+    blocks: Vec<Fixed>,
+    leaves: usize,
+    block: BlockScratch,
+}
+
+/// Groups per thread of the parallel block phase (balance against the copy's pieces).
+const GROUPS_PER_THREAD: usize = 4;
+
+/// Step 2 on the current pool: the blocks in groups of consecutive ranges (about equal
+/// primitive counts), each group into its own buffers as a task, then every group's nodes and
+/// packets copied in parallel to their places after node 0, child codes moved by the group's
+/// offsets. The result equals the serial build's, node for node.
+fn build_blocks_parallel<K: RadixKey, const W: usize>(
+    inp: &Inputs<'_, K>,
+    ranges: &[(u32, u32)],
+    out: &mut Outputs<'_, W>,
+    outs: &mut Vec<GroupOut<W>>,
+) -> Vec<Fixed> {
+    use rayon::prelude::*;
+    let n = inp.keys.len();
+    let groups = (rayon::current_num_threads() * GROUPS_PER_THREAD).min(ranges.len());
+    // Cut the ranges where the primitive count passes each multiple of n / groups.
+    let mut cuts = Vec::with_capacity(groups + 1);
+    cuts.push(0usize);
+    for (i, r) in ranges.iter().enumerate() {
+        let g = cuts.len();
+        if g < groups && r.0 as usize >= n * g / groups && i > *cuts.last().unwrap() {
+            cuts.push(i);
+        }
+    }
+    cuts.push(ranges.len());
+    outs.resize_with(cuts.len() - 1, GroupOut::default);
+    outs.par_iter_mut().enumerate().for_each(|(g, o)| {
+        o.nodes.clear();
+        o.packets.clear();
+        o.blocks.clear();
+        let mut go = Outputs {
+            nodes: &mut o.nodes,
+            packets: &mut o.packets,
+            leaves: 0,
+            block: &mut o.block,
+        };
+        for &(b, e) in &ranges[cuts[g]..cuts[g + 1]] {
+            let f = build_block(inp, b, e, &mut go);
+            o.blocks.push(f);
+        }
+        o.leaves = go.leaves;
+    });
+    // Offsets of every group's nodes (after node 0) and packets.
+    let (mut node_off, mut packet_off) = (
+        Vec::with_capacity(outs.len()),
+        Vec::with_capacity(outs.len()),
+    );
+    let (mut nn, mut np) = (out.nodes.len(), out.packets.len());
+    for o in outs.iter() {
+        node_off.push(nn as u32);
+        packet_off.push(np as u32);
+        nn += o.nodes.len();
+        np += o.packets.len();
+        out.leaves += o.leaves;
+    }
+    let base_n = out.nodes.len();
+    let base_p = out.packets.len();
+    crate::buffers::resized(out.nodes, nn, WideNodeN::empty());
+    crate::buffers::resized(out.packets, np, TriPacket::blank(1, true));
+    let shift = |c: u32, no: u32, po: u32| {
+        if c == EMPTY {
+            c
+        } else if c & LEAF != 0 {
+            c + po
+        } else {
+            c + no
+        }
+    };
+    // Disjoint destination slices, one per group.
+    let mut node_dst = Vec::with_capacity(outs.len());
+    let mut rest = &mut out.nodes[base_n..];
+    for o in outs.iter() {
+        let (a, b) = rest.split_at_mut(o.nodes.len());
+        node_dst.push(a);
+        rest = b;
+    }
+    let mut packet_dst = Vec::with_capacity(outs.len());
+    let mut rest = &mut out.packets[base_p..];
+    for o in outs.iter() {
+        let (a, b) = rest.split_at_mut(o.packets.len());
+        packet_dst.push(a);
+        rest = b;
+    }
+    outs.par_iter()
+        .zip(node_dst)
+        .zip(packet_dst)
+        .enumerate()
+        .for_each(|(g, ((o, nd), pd))| {
+            let (no, po) = (node_off[g], packet_off[g]);
+            for (d, s) in nd.iter_mut().zip(&o.nodes) {
+                *d = *s;
+                for c in d.child.iter_mut() {
+                    *c = shift(*c, no, po);
+                }
+            }
+            pd.copy_from_slice(&o.packets);
+        });
+    let mut blocks = Vec::with_capacity(ranges.len());
+    for (g, o) in outs.iter().enumerate() {
+        for f in &o.blocks {
+            blocks.push(Fixed {
+                code: shift(f.code, node_off[g], packet_off[g]),
+                ..*f
+            });
+        }
+    }
+    blocks
+}
+
+/// Buffers of the fast build kept between builds ([`crate::trace::Accel::rebuild`] reuses
+/// them, so a rebuild writes into memory that is already mapped).
+#[derive(Clone, Debug, Default)]
+pub struct FastScratch<const W: usize> {
+    aabbs: Vec<Aabb>,
+    codes64: Vec<u64>,
+    kbuf64: Vec<u64>,
+    codes32: Vec<u32>,
+    kbuf32: Vec<u32>,
+    ids: Vec<u32>,
+    vbuf: Vec<u32>,
+    /// The serial block builder's scratch.
+    block: BlockScratch,
+    /// The parallel block groups' buffers.
+    groups: Vec<GroupOut<W>>,
+}
+
+/// Wall milliseconds of the fast build's phases.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FastTimes {
+    /// Index check, triangle boxes and scene bounds.
+    pub aabb: f64,
+    /// Encoder set-up and codes.
+    pub encode: f64,
+    /// Radix sort.
+    pub sort: f64,
+    /// The top-down wide tree with its leaf packets.
+    pub tree: f64,
+}
+
+/// The fast build: a `W`-wide tree over the mesh (`W` = 4 or 8) into `bvh`'s buffers, codes of
+/// `layout`, scratch from `scratch`. Fails on an empty mesh, an index naming no vertex, a
+/// non-finite vertex, or too many triangles.
+pub fn build_fast<const W: usize>(
+    vertices: &[Vec3],
+    indices: &[[u32; 3]],
+    layout: &emc_core::LayoutSpec,
+    scratch: &mut FastScratch<W>,
+    nodes: &mut Vec<WideNodeN<W>>,
+    packets: &mut Vec<TriPacket>,
+    times: &mut FastTimes,
+) -> Result<FastTree, TraceError> {
+    use crate::trace::wide::MAX_TRIANGLES;
+    use std::time::Instant;
+    let n = indices.len();
+    if n == 0 {
+        return Err(TraceError::NoTriangles);
+    }
+    if n > MAX_TRIANGLES {
+        return Err(TraceError::TooManyTriangles(n));
+    }
+    let t0 = Instant::now();
+    check_indices(vertices, indices)?;
+    crate::buffers::resized_par(&mut scratch.aabbs, n, Aabb::EMPTY);
+    let bounds = crate::aabbs::triangle_aabbs_bounds(vertices, indices, &mut scratch.aabbs)
+        .map_err(|e| match e {
+            emc_core::Error::NonFinite(i) | emc_core::Error::InvertedBox(i) => {
+                TraceError::NonFinite(i)
+            }
+            e => TraceError::Build(e.to_string()),
+        })?;
+    let p = bounds.prim;
+    let max_abs = p.min.abs().max_element().max(p.max.abs().max_element());
+    let pad = max_abs * (1.0 / 65536.0);
+    let t1 = Instant::now();
+    times.aabb = (t1 - t0).as_secs_f64() * 1e3;
+    let frame = emc_core::Frame::from_bounds(bounds, emc_core::Normalization::CentroidBox)
+        .map_err(|e| TraceError::Build(e.to_string()))?;
+    let enc = emc_core::Encoder::new(layout, &frame);
+    let s = &mut *scratch;
+    let tree = if enc.layout().fits_u32() {
+        crate::buffers::resized(&mut s.codes32, n, 0);
+        crate::encode::encode_parallel_u32(&enc, &s.aabbs, &mut s.codes32)
+            .map_err(|e| TraceError::Build(e.to_string()))?;
+        let t2 = Instant::now();
+        times.encode = (t2 - t1).as_secs_f64() * 1e3;
+        crate::sort::sort_with_ids(&mut s.codes32, &mut s.ids, &mut s.kbuf32, &mut s.vbuf)
+            .map_err(|e| TraceError::Build(e.to_string()))?;
+        let t3 = Instant::now();
+        times.sort = (t3 - t2).as_secs_f64() * 1e3;
+        let inp = Inputs {
+            keys: &s.codes32,
+            ids: &s.ids,
+            vertices,
+            indices,
+            pad,
+        };
+        finish_tree(
+            &inp,
+            nodes,
+            packets,
+            &mut s.block,
+            &mut s.groups,
+            max_abs,
+            times,
+            t3,
+        )?
+    } else {
+        crate::buffers::resized(&mut s.codes64, n, 0);
+        crate::encode::encode_parallel(&enc, &s.aabbs, &mut s.codes64)
+            .map_err(|e| TraceError::Build(e.to_string()))?;
+        let t2 = Instant::now();
+        times.encode = (t2 - t1).as_secs_f64() * 1e3;
+        crate::sort::sort_with_ids(&mut s.codes64, &mut s.ids, &mut s.kbuf64, &mut s.vbuf)
+            .map_err(|e| TraceError::Build(e.to_string()))?;
+        let t3 = Instant::now();
+        times.sort = (t3 - t2).as_secs_f64() * 1e3;
+        let inp = Inputs {
+            keys: &s.codes64,
+            ids: &s.ids,
+            vertices,
+            indices,
+            pad,
+        };
+        finish_tree(
+            &inp,
+            nodes,
+            packets,
+            &mut s.block,
+            &mut s.groups,
+            max_abs,
+            times,
+            t3,
+        )?
+    };
+    Ok(tree)
+}
+
+/// What the fast build's tree came to.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct FastTree {
+    /// Leaves.
+    pub leaves: usize,
+    /// Depth (root: 0).
+    pub depth: usize,
+    /// Largest absolute vertex coordinate.
+    pub max_abs: f32,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn finish_tree<K: RadixKey, const W: usize>(
+    inp: &Inputs<'_, K>,
+    nodes: &mut Vec<WideNodeN<W>>,
+    packets: &mut Vec<TriPacket>,
+    block: &mut BlockScratch,
+    groups: &mut Vec<GroupOut<W>>,
+    max_abs: f32,
+    times: &mut FastTimes,
+    t3: std::time::Instant,
+) -> Result<FastTree, TraceError> {
+    let n = inp.keys.len();
+    nodes.reserve(n / (2 * W) + 1);
+    packets.reserve(n / 2 + 1);
+    let mut out = Outputs {
+        nodes,
+        packets,
+        leaves: 0,
+        block,
+    };
+    let depth = build_tree(inp, &mut out, groups)?;
+    times.tree = t3.elapsed().as_secs_f64() * 1e3;
+    Ok(FastTree {
+        leaves: out.leaves,
+        depth,
+        max_abs,
+    })
+}
+
+/// Every index names a vertex and every vertex a triangle uses is finite (two branch-free
+/// passes; the slow search for the culprit runs only when one of them fails).
+fn check_indices(vertices: &[Vec3], indices: &[[u32; 3]]) -> Result<(), TraceError> {
+    use rayon::prelude::*;
+    let nv = vertices.len();
+    let max = indices
+        .par_chunks(1 << 16)
+        .map(|c| c.iter().fold(0u32, |m, t| m.max(t[0]).max(t[1]).max(t[2])))
+        .max()
+        .unwrap_or(0);
+    if max as usize >= nv {
+        let (tri, index) = indices
+            .iter()
+            .enumerate()
+            .find_map(|(i, t)| t.iter().find(|&&x| x as usize >= nv).map(|&x| (i, x)))
+            .expect("some index is out of range");
+        return Err(TraceError::BadIndex {
+            tri,
+            index,
+            vertices: nv,
+        });
+    }
+    // A coordinate is not finite exactly when its exponent field is all ones.
+    const EXP: u32 = 0x7f80_0000;
+    let exp = vertices
+        .par_chunks(1 << 16)
+        .map(|c| {
+            c.iter().fold(0u32, |m, v| {
+                m.max(v.x.to_bits() & EXP)
+                    .max(v.y.to_bits() & EXP)
+                    .max(v.z.to_bits() & EXP)
+            })
+        })
+        .max()
+        .unwrap_or(0);
+    if exp == EXP {
+        if let Some(tri) = indices
+            .iter()
+            .position(|t| t.iter().any(|&i| !vertices[i as usize].is_finite()))
+        {
+            return Err(TraceError::NonFinite(tri));
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,362 @@
+//! Tests of the library face of the tracer, `Accel`, for every preset and both tree widths:
+//! closest and any hit equal brute force on every built-in scene (the hard cases included)
+//! and on the shared scenes of at most a million triangles, every tree passes the wide-tree
+//! validator, `rebuild` after moving the vertices equals a fresh build of the moved mesh, and
+//! bad input is refused with an error.
+
+use emc_cpu::scene::{self, builtin, Scene, SceneOptions};
+use emc_cpu::trace::intersect::{brute_force_closest, brute_force_occluded};
+use emc_cpu::trace::traverse::brute_force_packets;
+use emc_cpu::trace::wide::TriPacket;
+use emc_cpu::trace::{Accel, BuildOptions, Hit, Preset, Ray, TraceError};
+use emc_tests::adversarial_rays;
+use glam::Vec3;
+use rayon::prelude::*;
+
+const PRESETS: [Preset; 3] = [Preset::Fast, Preset::Balanced, Preset::Quality];
+
+fn triangles(s: &Scene) -> Vec<[Vec3; 3]> {
+    (0..s.triangle_count()).map(|i| s.triangle(i)).collect()
+}
+
+/// `n` rays: half aimed from random origins at random points inside random triangles, half
+/// the adversarial set of `emc_tests` (edges, vertices, axis-parallel, grazing, zero
+/// components, origins on triangles).
+fn rays_for(tris: &[[Vec3; 3]], n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = builtin::Pcg32::new(seed, 3);
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for t in tris {
+        for v in t {
+            lo = lo.min(*v);
+            hi = hi.max(*v);
+        }
+    }
+    let pad = (hi - lo) * 0.2 + Vec3::splat(1e-3);
+    let mut out = Vec::with_capacity(n);
+    for _ in 0..n / 2 {
+        let o = Vec3::new(
+            rng.range(lo.x - pad.x, hi.x + pad.x),
+            rng.range(lo.y - pad.y, hi.y + pad.y),
+            rng.range(lo.z - pad.z, hi.z + pad.z),
+        );
+        let t = tris[rng.next_u32() as usize % tris.len()];
+        let (u, v) = (rng.f32(), rng.f32());
+        let (u, v) = if u + v > 1.0 {
+            (1.0 - u, 1.0 - v)
+        } else {
+            (u, v)
+        };
+        let p = t[0] + (t[1] - t[0]) * u + (t[2] - t[0]) * v;
+        let d = p - o;
+        out.push(Ray::new(o, if d == Vec3::ZERO { Vec3::Z } else { d }));
+    }
+    out.extend(adversarial_rays(tris, n - n / 2, seed ^ 0x5eed));
+    out
+}
+
+/// Brute-force answers: closest hit and any hit, by the scalar test per triangle; over
+/// 100,000 triangles by the packet test over every triangle (equal, four times faster; the
+/// two are compared on a sample of the rays first).
+fn brute_force(tris: &[[Vec3; 3]], rays: &[Ray]) -> Vec<(Option<Hit>, bool)> {
+    if tris.len() < 100_000 {
+        return rays
+            .par_iter()
+            .map(|r| (brute_force_closest(r, tris), brute_force_occluded(r, tris)))
+            .collect();
+    }
+    let packets = TriPacket::of_triangles(tris);
+    rays.par_iter().step_by(97).for_each(|r| {
+        let a = brute_force_closest(r, tris);
+        let b = brute_force_packets(r, &packets);
+        assert_eq!(
+            a.map(|h| (h.t.to_bits(), h.prim)),
+            b.map(|h| (h.t.to_bits(), h.prim)),
+            "{r:?}"
+        );
+    });
+    rays.par_iter()
+        .map(|r| {
+            let h = brute_force_packets(r, &packets);
+            (h, h.is_some())
+        })
+        .collect()
+}
+
+/// `a` answers every ray as brute force does: closest `t` bits and triangle id, any hit.
+fn check(name: &str, a: &Accel, rays: &[Ray], want: &[(Option<Hit>, bool)]) {
+    let bad: Vec<String> = rays
+        .par_iter()
+        .zip(want)
+        .enumerate()
+        .filter_map(|(i, (r, &(w, wo)))| {
+            let got = a.intersect(r);
+            let same = match (w, got) {
+                (None, None) => true,
+                (Some(x), Some(y)) => x.t.to_bits() == y.t.to_bits() && x.prim == y.prim,
+                _ => false,
+            };
+            let occ = a.occluded(r);
+            (!same || occ != wo)
+                .then(|| format!("ray {i} {r:?}: want {w:?}/{wo}, got {got:?}/{occ}"))
+        })
+        .collect();
+    assert!(
+        bad.is_empty(),
+        "{name}: {} of {} rays differ from brute force; first: {}",
+        bad.len(),
+        rays.len(),
+        bad[0]
+    );
+}
+
+fn build(s: &Scene, preset: Preset, width: usize) -> Accel {
+    let opts = BuildOptions {
+        width: Some(width),
+        ..BuildOptions::preset(preset)
+    };
+    let a = Accel::build(&s.vertices, &s.indices, &opts)
+        .unwrap_or_else(|e| panic!("{preset:?}/{width} builds: {e}"));
+    a.wide_bvh()
+        .validate(a.triangle_count(), |i| a.triangle(i))
+        .unwrap_or_else(|e| panic!("{preset:?}/{width}: invalid tree: {e}"));
+    a
+}
+
+fn check_scene(label: &str, s: &Scene, rays: usize) {
+    let tris = triangles(s);
+    let rays = rays_for(&tris, rays, 17);
+    let want = brute_force(&tris, &rays);
+    for preset in PRESETS {
+        for width in [4, 8] {
+            let a = build(s, preset, width);
+            assert_eq!(a.wide_bvh().width(), width);
+            check(
+                &format!("{label} {preset:?}/{width}-wide"),
+                &a,
+                &rays,
+                &want,
+            );
+        }
+    }
+}
+
+#[test]
+fn every_preset_equals_brute_force_on_builtin_scenes() {
+    for name in builtin::NAMES {
+        let s = scene::load_with(
+            &format!("builtin:{name}"),
+            &SceneOptions {
+                prims: Some(4000),
+                ..SceneOptions::default()
+            },
+        )
+        .unwrap();
+        check_scene(&format!("builtin:{name}"), &s, 10_000);
+    }
+}
+
+#[test]
+fn every_preset_equals_brute_force_on_hard_scenes() {
+    let mut tested = 0;
+    for name in builtin::HARD_NAMES {
+        let Ok(s) = scene::load_with(
+            &format!("builtin:{name}"),
+            &SceneOptions {
+                prims: Some(2000),
+                ..SceneOptions::default()
+            },
+        ) else {
+            // builtin:hard-nonfinite is refused at load time (its own test covers it).
+            continue;
+        };
+        check_scene(&format!("builtin:{name}"), &s, 10_000);
+        tested += 1;
+    }
+    assert!(
+        tested >= builtin::HARD_NAMES.len() - 1,
+        "{tested} hard scenes loaded"
+    );
+}
+
+#[test]
+fn every_preset_equals_brute_force_on_shared_scenes() {
+    if scene::shared_scenes_dir().is_none() {
+        eprintln!("skipping: no shared scenes directory (../shared/scenes or $EMC_SHARED_DIR)");
+        return;
+    }
+    for name in ["sionna-san-francisco", "pbrt-bathroom", "stanford-dragon"] {
+        if scene::shared_scene_path(name).is_none() {
+            eprintln!("skipping {name}: not present");
+            continue;
+        }
+        let s = scene::load(name).unwrap();
+        assert!(s.triangle_count() <= 1_000_000);
+        let t0 = std::time::Instant::now();
+        check_scene(name, &s, 10_000);
+        eprintln!("{name}: {:.1} s", t0.elapsed().as_secs_f64());
+    }
+}
+
+/// A deterministic deformation of every vertex (a travelling wave along each axis).
+fn moved(v: &[Vec3], phase: f32) -> Vec<Vec3> {
+    let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for p in v {
+        lo = lo.min(*p);
+        hi = hi.max(*p);
+    }
+    let e = (hi - lo).max_element().max(1e-6);
+    v.iter()
+        .map(|p| {
+            let q = (*p - lo) / e;
+            *p + Vec3::new(
+                (q.y * 7.0 + phase).sin(),
+                (q.z * 5.0 + phase).cos(),
+                (q.x * 3.0 - phase).sin(),
+            ) * (0.05 * e)
+        })
+        .collect()
+}
+
+#[test]
+fn rebuild_equals_a_fresh_build_of_the_moved_mesh() {
+    for name in ["mixed", "city"] {
+        let s = scene::load_with(
+            &format!("builtin:{name}"),
+            &SceneOptions {
+                prims: Some(5000),
+                ..SceneOptions::default()
+            },
+        )
+        .unwrap();
+        for preset in PRESETS {
+            let mut a = build(&s, preset, 8);
+            for frame in 1..=3 {
+                let v = moved(&s.vertices, frame as f32);
+                a.rebuild(&v).unwrap();
+                let fresh_scene = Scene {
+                    vertices: v.clone(),
+                    ..s.clone()
+                };
+                let fresh = build(&fresh_scene, preset, 8);
+                let (x, y) = (a.wide_bvh(), fresh.wide_bvh());
+                assert!(
+                    x.nodes8 == y.nodes8 && x.nodes == y.nodes && x.packets == y.packets,
+                    "{name} {preset:?} frame {frame}: rebuild differs from a fresh build"
+                );
+                a.wide_bvh()
+                    .validate(a.triangle_count(), |i| a.triangle(i))
+                    .unwrap();
+                let tris = triangles(&fresh_scene);
+                let rays = rays_for(&tris, 2000, frame);
+                check(
+                    &format!("{name} {preset:?} frame {frame}"),
+                    &a,
+                    &rays,
+                    &brute_force(&tris, &rays),
+                );
+            }
+        }
+    }
+}
+
+#[test]
+fn rebuild_refuses_bad_vertices_and_keeps_the_tree() {
+    let s = scene::load_with(
+        "builtin:sphere",
+        &SceneOptions {
+            prims: Some(500),
+            ..SceneOptions::default()
+        },
+    )
+    .unwrap();
+    for preset in PRESETS {
+        let mut a = build(&s, preset, 8);
+        let before = a.wide_bvh().clone();
+        match a.rebuild(&s.vertices[1..]) {
+            Err(TraceError::VertexCount { given, expected }) => {
+                assert_eq!((given, expected), (s.vertices.len() - 1, s.vertices.len()))
+            }
+            other => panic!("{preset:?}: a short vertex list gave {other:?}"),
+        }
+        let mut nan = s.vertices.clone();
+        nan[3].y = f32::NAN;
+        let r = a.rebuild(&nan);
+        assert!(
+            matches!(r, Err(TraceError::NonFinite(_))),
+            "{preset:?}: {r:?}"
+        );
+        assert!(a.wide_bvh().nodes8 == before.nodes8 && a.wide_bvh().packets == before.packets);
+        let tris = triangles(&s);
+        let rays = rays_for(&tris, 500, 5);
+        check(
+            &format!("{preset:?} after refusals"),
+            &a,
+            &rays,
+            &brute_force(&tris, &rays),
+        );
+    }
+}
+
+#[test]
+fn bad_meshes_and_options_are_refused() {
+    let v = [Vec3::ZERO, Vec3::X, Vec3::Y];
+    for preset in PRESETS {
+        let o = BuildOptions::preset(preset);
+        assert!(matches!(
+            Accel::build(&v, &[[0, 1, 3]], &o),
+            Err(TraceError::BadIndex {
+                tri: 0,
+                index: 3,
+                vertices: 3
+            })
+        ));
+        assert!(matches!(
+            Accel::build(&v, &[], &o),
+            Err(TraceError::NoTriangles)
+        ));
+        let inf = [Vec3::ZERO, Vec3::X, Vec3::new(0.0, f32::INFINITY, 0.0)];
+        assert!(matches!(
+            Accel::build(&inf, &[[0, 1, 2]], &o),
+            Err(TraceError::NonFinite(0))
+        ));
+        let w = BuildOptions {
+            width: Some(6),
+            ..o
+        };
+        assert!(Accel::build(&v, &[[0, 1, 2]], &w).is_err());
+    }
+}
+
+#[test]
+fn builds_are_identical_at_any_thread_count() {
+    // Large enough for many blocks (the parallel block phase) on every preset.
+    let s = scene::load_with(
+        "builtin:mixed",
+        &SceneOptions {
+            prims: Some(120_000),
+            ..SceneOptions::default()
+        },
+    )
+    .unwrap();
+    for preset in PRESETS {
+        for width in [4, 8] {
+            let at = |threads| {
+                let opts = BuildOptions {
+                    width: Some(width),
+                    threads: Some(threads),
+                    ..BuildOptions::preset(preset)
+                };
+                Accel::build(&s.vertices, &s.indices, &opts).unwrap()
+            };
+            let one = at(1);
+            for threads in [2, 3] {
+                let other = at(threads);
+                let (x, y) = (one.wide_bvh(), other.wide_bvh());
+                assert!(
+                    x.nodes == y.nodes && x.nodes8 == y.nodes8 && x.packets == y.packets,
+                    "{preset:?}/{width}: {threads} threads build another tree than one"
+                );
+            }
+        }
+    }
+}
