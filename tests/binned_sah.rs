@@ -265,6 +265,26 @@ fn matches_plain_reference_on_large_inputs() {
 }
 
 #[test]
+fn scalar_loops_match_the_plain_reference_too() {
+    // The SIMD binning and partition are the default where the CPU has AVX2; the scalar loops
+    // must give the same trees (both paths are identical, so flipping the switch while other
+    // tests build cannot change their results).
+    emc_cpu::bvh::binned_sah::force_scalar(true);
+    for (name, boxes) in hard_scenes() {
+        let got = build_binned_sah(&boxes, DEFAULT_BINS).unwrap();
+        assert_same_tree(&got, &plain_binned_sah(&boxes, DEFAULT_BINS), name);
+    }
+    let boxes = clustered_boxes(40_000, 3);
+    let got = build_binned_sah(&boxes, DEFAULT_BINS).unwrap();
+    emc_cpu::bvh::binned_sah::force_scalar(false);
+    assert_same_tree(
+        &got,
+        &plain_binned_sah(&boxes, DEFAULT_BINS),
+        "clustered, scalar",
+    );
+}
+
+#[test]
 fn matches_plain_reference_on_hard_scenes() {
     for (name, boxes) in hard_scenes() {
         for nb in [2, DEFAULT_BINS, MAX_BINS] {

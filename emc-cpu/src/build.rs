@@ -299,11 +299,13 @@ pub struct BuildOutput {
     pub report: BuildReport,
 }
 
-/// A local pool plus the phase clock.
+/// A local pool plus the phase clock; or, for library builds, no pool of its own (the caller's
+/// pool runs everything), wall times only and no SAH figures.
 struct Timed {
-    pool: rayon::ThreadPool,
+    pool: Option<rayon::ThreadPool>,
     threads: usize,
     phases: [PhaseTime; 7],
+    metrics: bool,
 }
 
 impl Timed {
@@ -319,15 +321,37 @@ impl Timed {
                 msg: e.to_string(),
             })?;
         Ok(Timed {
-            pool,
+            pool: Some(pool),
             threads,
             phases: [PhaseTime::default(); 7],
+            metrics: true,
         })
+    }
+
+    /// Run in the caller's pool, without CPU accounting or SAH figures.
+    fn inline() -> Timed {
+        Timed {
+            pool: None,
+            threads: rayon::current_num_threads(),
+            phases: [PhaseTime::default(); 7],
+            metrics: false,
+        }
+    }
+
+    /// A figure only reports need (0 when the build takes none).
+    fn metric(&self, f: impl FnOnce() -> f64 + Send) -> f64 {
+        match (&self.pool, self.metrics) {
+            (Some(p), true) => p.install(f),
+            _ => 0.0,
+        }
     }
 
     /// CPU and run-queue-wait milliseconds of every pool thread so far (by thread index).
     fn thread_times(&self) -> Vec<(f64, f64)> {
-        crate::cputime::pool_thread_times(&self.pool)
+        let Some(pool) = &self.pool else {
+            return Vec::new();
+        };
+        crate::cputime::pool_thread_times(pool)
             .into_iter()
             .map(|(c, w)| (c.as_secs_f64() * 1e3, w.as_secs_f64() * 1e3))
             .collect()
@@ -337,7 +361,10 @@ impl Timed {
     fn run<R: Send>(&mut self, p: Phase, f: impl FnOnce() -> R + Send) -> R {
         let c0 = self.thread_times();
         let t0 = Instant::now();
-        let r = self.pool.install(f);
+        let r = match &self.pool {
+            Some(pool) => pool.install(f),
+            None => f(),
+        };
         let wall = t0.elapsed().as_secs_f64() * 1e3;
         let c1 = self.thread_times();
         let used: Vec<(f64, f64)> = c1
@@ -492,6 +519,18 @@ pub fn build_aabbs(aabbs: Vec<Aabb>, opts: &BuildOptions) -> Result<BuildOutput,
     build_aabbs_in(aabbs, opts, &mut BuildArena::new())
 }
 
+/// [`build_aabbs`] for library callers: every phase in the caller's rayon pool (no pool of its
+/// own), wall times only, and no SAH figures in the report (`sah_*` and `depth` are 0).
+pub fn build_aabbs_inline(
+    aabbs: Vec<Aabb>,
+    opts: &BuildOptions,
+) -> Result<BuildOutput, BuildError> {
+    if opts.threads == 0 {
+        return Err(BuildError::ZeroThreads);
+    }
+    build_timed(Timed::inline(), aabbs, opts, &mut BuildArena::new())
+}
+
 /// [`build_aabbs`] in the buffers of `arena`.
 pub fn build_aabbs_in(
     aabbs: Vec<Aabb>,
@@ -520,10 +559,12 @@ fn build_timed(
     let k = opts.collapse;
     if opts.builder == Builder::BinnedSah {
         let ab = &aabbs;
-        timed.run(Phase::Encode, || scene_bounds(ab))?;
+        if timed.metrics {
+            timed.run(Phase::Encode, || scene_bounds(ab))?;
+        }
         let plain = timed.run(Phase::Hierarchy, || build_binned_sah(ab, DEFAULT_BINS))?;
         let bvh = timed.run(Phase::Collapse, || collapse_bvh(&plain, &k));
-        let headline = timed.pool.install(|| sah_headline(&plain));
+        let headline = timed.metric(|| sah_headline(&plain));
         return Ok(finish(
             timed,
             bvh,
@@ -589,7 +630,7 @@ fn lbvh_phases<K: RadixKey>(
         let swept = timed.run(Phase::Hierarchy, || {
             sweep_tree_in(&keys, order, aabbs, &k, scratch)
         });
-        let headline = timed.pool.install(|| swept.sah_headline(aabbs));
+        let headline = timed.metric(|| swept.sah_headline(aabbs));
         let nodes = std::mem::take(&mut arena.nodes);
         let scratch = &mut arena.sweep;
         let bvh = timed.run(Phase::Collapse, || swept.emit_in(nodes, scratch));
@@ -610,9 +651,9 @@ fn lbvh_phases<K: RadixKey>(
             (t, sorted)
         }
     };
-    let headline = timed.pool.install(|| tree.sah_headline(aabbs));
+    let headline = timed.metric(|| tree.sah_headline(aabbs));
     let (bvh, _depth) = timed.run(Phase::Collapse, || emit(&tree, &sorted, order));
-    timed.pool.install(move || drop((tree, sorted)));
+    timed.run(Phase::Collapse, move || drop((tree, sorted)));
     Ok((bvh, sort, headline, keys))
 }
 
@@ -632,7 +673,7 @@ fn atrbvh_phases<K: RadixKey>(
     let mut plain = timed.run(Phase::Collapse, || swept.emit());
     let cfg = AtrConfig::default();
     timed.run(Phase::Optimize, || restructure(&mut plain, aabbs, &cfg))?;
-    let headline = timed.pool.install(|| sah_headline(&plain));
+    let headline = timed.metric(|| sah_headline(&plain));
     let bvh = timed.run(Phase::Collapse, || collapse_bvh(&plain, k));
     Ok((bvh, headline))
 }
@@ -650,8 +691,11 @@ fn finish(
         ct: opts.collapse.ct,
         ci: opts.collapse.ci,
     };
-    let collapsed = sah_cost(&bvh, k);
-    let depth = bvh.depth();
+    let (collapsed, depth) = if timed.metrics {
+        (sah_cost(&bvh, k), bvh.depth())
+    } else {
+        (0.0, 0)
+    };
     let leaves = bvh.nodes.iter().filter(|n| n.is_leaf()).count();
     let report = BuildReport {
         prims: aabbs.len(),

@@ -9,7 +9,13 @@
 //! bounded even for a million identical primitives. Large nodes bin and partition in parallel
 //! over fixed-size chunks; subtrees run in parallel through `rayon::join` down to a bounded
 //! join depth and finish on an explicit work stack, so no input can exhaust the call stack.
-#![forbid(unsafe_code)]
+//!
+//! The hot loops (binning, partitioning) have an AVX2 path for the `f64` centroid and bin
+//! arithmetic of all three axes at once (`mod simd`, the file's only `unsafe`), chosen at run
+//! time and equal to the scalar one bit for bit (same IEEE operations per lane). Binning also
+//! records every primitive's three bins (`tags`) for the partition that follows, and which bins
+//! are in use (bit masks), so the split sweep visits only non-empty bins.
+#![deny(unsafe_code)]
 
 use emc_core::Aabb;
 use glam::{Vec3A, Vec4};
@@ -17,6 +23,17 @@ use rayon::prelude::*;
 use thiserror::Error;
 
 use super::node::{Bvh, Node};
+
+/// Set by [`force_scalar`].
+static SCALAR_ONLY: std::sync::atomic::AtomicBool = std::sync::atomic::AtomicBool::new(false);
+
+/// Make every later build use the scalar binning and partition loops (`true`) or the fastest
+/// this CPU has (`false`, the default). Both give the same tree bit for bit; the switch exists
+/// so tests can hold the SIMD path against the scalar one on the same machine.
+#[doc(hidden)]
+pub fn force_scalar(on: bool) {
+    SCALAR_ONLY.store(on, std::sync::atomic::Ordering::Relaxed);
+}
 
 /// Bins per axis used when the caller has no reason to choose otherwise.
 pub const DEFAULT_BINS: usize = 32;
@@ -112,6 +129,7 @@ pub fn build_binned_sah_detailed(
     let mut dst = vec![PrimRef::default(); n];
     let mut nodes = vec![Node::default(); 2 * n - 1];
     let mut prim_indices = vec![0u32; n];
+    let mut tags = vec![[0u8; 4]; n];
 
     let (bounds, cbounds) = ordered_bounds(&src, true);
     let ctx = Ctx {
@@ -119,6 +137,7 @@ pub fn build_binned_sah_detailed(
         dst: &mut dst,
         nodes: &mut nodes,
         out: &mut prim_indices,
+        tags: &mut tags,
         prim_base: 0,
         node_base: 0,
     };
@@ -214,9 +233,15 @@ impl Box3 {
         }
     }
 
-    /// Surface area in `f64` (the same arithmetic as [`Aabb::area_f64`]).
+    /// Surface area in `f64` (the same arithmetic as [`Aabb::area_f64`]; by SSE2 `f64`
+    /// lanes on x86-64, operation for operation).
     #[inline]
     fn area(&self) -> f64 {
+        #[cfg(target_arch = "x86_64")]
+        {
+            simd::area(self)
+        }
+        #[cfg(not(target_arch = "x86_64"))]
         self.aabb().area_f64()
     }
 
@@ -296,6 +321,18 @@ impl BinMap {
         t.min((self.bins - 1) as f64) as u32 as usize
     }
 
+    /// The three bins of `r`'s centroid (byte 3 unused).
+    #[inline]
+    fn tag(&self, r: &PrimRef) -> [u8; 4] {
+        let c = r.centroid();
+        [
+            self.bin(c[0], 0) as u8,
+            self.bin(c[1], 1) as u8,
+            self.bin(c[2], 2) as u8,
+            0,
+        ]
+    }
+
     fn any_active(&self) -> bool {
         self.active.iter().any(|&a| a)
     }
@@ -309,6 +346,8 @@ struct Bins {
     nb: usize,
     counts: Vec<u32>,
     bounds: Vec<Box3>,
+    /// Per axis, bit `k` set when bin `k` is in use (bins ≤ 64 only; else scanned).
+    used: [u64; 3],
     /// Sweep scratch: the non-empty bins of one axis, and the areas and counts of their suffixes.
     nonempty: Vec<usize>,
     suffix_area: Vec<f64>,
@@ -321,31 +360,73 @@ impl Bins {
             nb,
             counts: vec![0; 3 * nb],
             bounds: vec![Box3::EMPTY; 3 * nb],
+            used: [0; 3],
             nonempty: Vec::with_capacity(nb),
             suffix_area: vec![0.0; nb],
             suffix_count: vec![0; nb],
         }
     }
 
-    /// Adds `refs` to the (empty) bins.
-    fn fill(&mut self, refs: &[PrimRef], map: &BinMap) {
-        let nb = self.nb;
+    /// Adds `refs` to the (empty) bins and writes each primitive's three bins to `tags`
+    /// (same length).
+    fn fill(&mut self, refs: &[PrimRef], tags: &mut [[u8; 4]], map: &BinMap) {
         debug_assert!(self.counts.iter().all(|&c| c == 0));
-        for r in refs {
-            let c = r.centroid();
+        debug_assert_eq!(refs.len(), tags.len());
+        #[cfg(target_arch = "x86_64")]
+        let done = simd::tags(refs, tags, map);
+        #[cfg(not(target_arch = "x86_64"))]
+        let done = false;
+        if !done {
+            for (r, t) in refs.iter().zip(tags.iter_mut()) {
+                *t = map.tag(r);
+            }
+        }
+        let nb = self.nb;
+        let mut used = [0u64; 3];
+        for (r, t) in refs.iter().zip(tags.iter()) {
             let (lo, hi) = r.simd();
-            for (a, &ca) in c.iter().enumerate() {
-                let i = a * nb + map.bin(ca, a);
-                let b = &mut self.bounds[i];
+            for a in 0..3 {
+                let k = t[a] as usize;
+                let b = &mut self.bounds[a * nb + k];
                 b.min = b.min.min(lo);
                 b.max = b.max.max(hi);
-                self.counts[i] += 1;
+                self.counts[a * nb + k] += 1;
+                used[a] |= 1u64.wrapping_shl(k as u32);
             }
+        }
+        self.used = used;
+    }
+
+    /// The non-empty bins of `axis`, ascending, into `out`.
+    fn nonempty_of(&self, axis: usize, out: &mut Vec<usize>) {
+        out.clear();
+        let base = axis * self.nb;
+        if self.nb <= 64 {
+            let mut m = self.used[axis];
+            while m != 0 {
+                out.push(m.trailing_zeros() as usize);
+                m &= m - 1;
+            }
+        } else {
+            out.extend((0..self.nb).filter(|&k| self.counts[base + k] != 0));
         }
     }
 
     /// Empties the bins again, touching only the non-empty ones.
     fn clear_used(&mut self) {
+        if self.nb <= 64 {
+            for a in 0..3 {
+                let mut m = self.used[a];
+                while m != 0 {
+                    let i = a * self.nb + m.trailing_zeros() as usize;
+                    self.counts[i] = 0;
+                    self.bounds[i] = Box3::EMPTY;
+                    m &= m - 1;
+                }
+            }
+            self.used = [0; 3];
+            return;
+        }
         for (c, b) in self.counts.iter_mut().zip(self.bounds.iter_mut()) {
             if *c != 0 {
                 *c = 0;
@@ -356,6 +437,9 @@ impl Bins {
 
     /// Adds the bins of `o` (same bin map) to these.
     fn merge(&mut self, o: &Bins) {
+        for a in 0..3 {
+            self.used[a] |= o.used[a];
+        }
         for i in 0..3 * self.nb {
             if o.counts[i] == 0 {
                 continue;
@@ -388,9 +472,9 @@ impl Bins {
                 continue;
             }
             let base = axis * nb;
-            self.nonempty.clear();
-            self.nonempty
-                .extend((0..nb).filter(|&k| self.counts[base + k] != 0));
+            let mut nonempty = std::mem::take(&mut self.nonempty);
+            self.nonempty_of(axis, &mut nonempty);
+            self.nonempty = nonempty;
             let m = self.nonempty.len();
             // suffix_*[j] describe the non-empty bins j..m.
             let mut acc = Box3::EMPTY;
@@ -419,7 +503,9 @@ impl Bins {
         let base = axis * nb;
         let (mut left, mut right) = (Box3::EMPTY, Box3::EMPTY);
         let mut n_left = 0usize;
-        for k in (0..nb).filter(|&k| self.counts[base + k] != 0) {
+        let mut nonempty = std::mem::take(&mut self.nonempty);
+        self.nonempty_of(axis, &mut nonempty);
+        for &k in &nonempty {
             let b = &self.bounds[base + k];
             if k < split {
                 left = left.union(b);
@@ -428,6 +514,7 @@ impl Bins {
                 right = right.union(b);
             }
         }
+        self.nonempty = nonempty;
         Some(Plan::Binned {
             axis,
             split,
@@ -453,21 +540,26 @@ enum Plan {
     Median,
 }
 
-/// Stable partition of `src` into `left` (bin below `split` on `axis`) and `right`, which must
-/// have exactly the right lengths. Returns the centroid boxes of both sides.
+/// Stable partition of `src` into `left` (bin below `split` on `axis`, read from the
+/// primitives' `tags`) and `right`, which must have exactly the right lengths. Returns the
+/// centroid boxes of both sides.
 fn partition_into(
     src: &[PrimRef],
+    tags: &[[u8; 4]],
     left: &mut [PrimRef],
     right: &mut [PrimRef],
-    map: &BinMap,
     axis: usize,
     split: usize,
 ) -> (CentroidBox, CentroidBox) {
+    #[cfg(target_arch = "x86_64")]
+    if let Some(r) = simd::partition(src, tags, left, right, axis, split) {
+        return r;
+    }
     let (mut cl, mut cr) = (CentroidBox::EMPTY, CentroidBox::EMPTY);
     let (mut li, mut ri) = (0usize, 0usize);
-    for r in src {
+    for (r, t) in src.iter().zip(tags) {
         let c = r.centroid();
-        if map.bin(c[axis], axis) < split {
+        if (t[axis] as usize) < split {
             left[li] = *r;
             li += 1;
             cl.grow(c);
@@ -524,6 +616,8 @@ struct Ctx<'a> {
     dst: &'a mut [PrimRef],
     nodes: &'a mut [Node],
     out: &'a mut [u32],
+    /// Each position's three bins, written by binning, read by the partition after it.
+    tags: &'a mut [[u8; 4]],
     prim_base: u32,
     node_base: u32,
 }
@@ -554,9 +648,10 @@ fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
         chunk_bins = ctx
             .src
             .par_chunks(CHUNK)
-            .map(|rs| {
+            .zip(ctx.tags.par_chunks_mut(CHUNK))
+            .map(|(rs, ts)| {
                 let mut b = Bins::new(nb);
-                b.fill(rs, &map);
+                b.fill(rs, ts, &map);
                 b
             })
             .collect();
@@ -567,7 +662,7 @@ fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
         total.choose_split(&map).unwrap_or(Plan::Median)
     } else {
         let mut b = Bins::new(nb);
-        b.fill(ctx.src, &map);
+        b.fill(ctx.src, ctx.tags, &map);
         b.choose_split(&map).unwrap_or(Plan::Median)
     };
 
@@ -576,6 +671,7 @@ fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
         dst,
         nodes,
         out,
+        tags,
         prim_base,
         node_base,
     } = ctx;
@@ -588,10 +684,10 @@ fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
             right,
         } => {
             let (cl, cr) = if big {
-                parallel_partition(src, dst, &chunk_bins, &map, axis, split, n_left)
+                parallel_partition(src, tags, dst, &chunk_bins, axis, split, n_left)
             } else {
                 let (dl, dr) = dst.split_at_mut(n_left);
-                partition_into(src, dl, dr, &map, axis, split)
+                partition_into(src, tags, dl, dr, axis, split)
             };
             (n_left, (left, cl), (right, cr), true)
         }
@@ -612,6 +708,7 @@ fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
     );
     let (nodes_l, nodes_r) = rest.split_at_mut(left_nodes);
     let (out_l, out_r) = out.split_at_mut(n_left);
+    let (tags_l, tags_r) = tags.split_at_mut(n_left);
     let (src_l, src_r) = src.split_at_mut(n_left);
     let (dst_l, dst_r) = dst.split_at_mut(n_left);
     // After a binned partition the data lives in `dst`: the buffers trade roles.
@@ -625,6 +722,7 @@ fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
         dst: spare_l,
         nodes: nodes_l,
         out: out_l,
+        tags: tags_l,
         prim_base,
         node_base: node_base + 1,
     };
@@ -633,6 +731,7 @@ fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
         dst: spare_r,
         nodes: nodes_r,
         out: out_r,
+        tags: tags_r,
         prim_base: prim_base + n_left as u32,
         node_base: node_base + 1 + left_nodes as u32,
     };
@@ -670,9 +769,9 @@ fn build_parallel(ctx: Ctx<'_>, task: Task, nb: usize, joins: u32) -> u32 {
 /// chunk's left count comes from its own bins, so every chunk knows where its pieces go.
 fn parallel_partition(
     src: &[PrimRef],
+    tags: &[[u8; 4]],
     dst: &mut [PrimRef],
     chunk_bins: &[Bins],
-    map: &BinMap,
     axis: usize,
     split: usize,
     n_left: usize,
@@ -690,8 +789,9 @@ fn parallel_partition(
     debug_assert!(lrest.is_empty() && rrest.is_empty());
     let parts: Vec<(CentroidBox, CentroidBox)> = src
         .par_chunks(CHUNK)
+        .zip(tags.par_chunks(CHUNK))
         .zip(pieces.into_par_iter())
-        .map(|(chunk, (pl, pr))| partition_into(chunk, pl, pr, map, axis, split))
+        .map(|((chunk, ts), (pl, pr))| partition_into(chunk, ts, pl, pr, axis, split))
         .collect();
     parts.iter().fold(
         (CentroidBox::EMPTY, CentroidBox::EMPTY),
@@ -717,6 +817,7 @@ fn build_serial(ctx: Ctx<'_>, root: Task, nb: usize) -> u32 {
         dst: buf_b,
         nodes,
         out,
+        tags,
         prim_base,
         node_base,
     } = ctx;
@@ -765,7 +866,7 @@ fn build_serial(ctx: Ctx<'_>, root: Task, nb: usize) -> u32 {
 
         let map = BinMap::new(&task.cbounds, nb);
         let plan = if map.any_active() {
-            bins.fill(cur, &map);
+            bins.fill(cur, &mut tags[lo..hi], &map);
             let plan = bins.choose_split(&map).unwrap_or(Plan::Median);
             bins.clear_used();
             plan
@@ -781,7 +882,7 @@ fn build_serial(ctx: Ctx<'_>, root: Task, nb: usize) -> u32 {
                 right,
             } => {
                 let (dl, dr) = spare.split_at_mut(n_left);
-                let (cl, cr) = partition_into(cur, dl, dr, &map, axis, split);
+                let (cl, cr) = partition_into(cur, &tags[lo..hi], dl, dr, axis, split);
                 (n_left, (left, cl), (right, cr), !in_spare)
             }
             Plan::Median => {
@@ -821,4 +922,168 @@ fn build_serial(ctx: Ctx<'_>, root: Task, nb: usize) -> u32 {
         });
     }
     max_depth
+}
+
+/// The AVX2 kernels of binning and partitioning: the `f64` centroid and bin arithmetic of the
+/// three axes in the lanes of one register, operation for operation the scalar
+/// [`PrimRef::centroid`] and [`BinMap::bin`] (the same IEEE additions, multiplications,
+/// minimum and truncation per lane), so every bin and centroid box equals the scalar one.
+#[cfg(target_arch = "x86_64")]
+#[allow(unsafe_code)]
+mod simd {
+    use core::arch::x86_64::*;
+
+    use super::{BinMap, Box3, CentroidBox, PrimRef};
+
+    /// [`Box3::area`]: `2 · ((dx·dy + dy·dz) + dz·dx)` with `d = max(hi − lo, 0)` in `f64`,
+    /// the operations of `Aabb::area_f64` in the same order (SSE2, part of x86-64).
+    #[inline(always)]
+    pub fn area(b: &Box3) -> f64 {
+        // SAFETY: SSE2 is part of the x86-64 baseline; the loads read the two `Vec3A` of `b`
+        // (16 bytes each, the fourth lane unused and dropped by the conversion of lanes 0-1
+        // and 2).
+        unsafe {
+            let lo = _mm_loadu_ps(&b.min as *const _ as *const f32);
+            let hi = _mm_loadu_ps(&b.max as *const _ as *const f32);
+            // Lanes x, y as f64 and lane z as f64.
+            let lxy = _mm_cvtps_pd(lo);
+            let hxy = _mm_cvtps_pd(hi);
+            let lz = _mm_cvtps_pd(_mm_movehl_ps(lo, lo));
+            let hz = _mm_cvtps_pd(_mm_movehl_ps(hi, hi));
+            let zero = _mm_setzero_pd();
+            let dxy = _mm_max_pd(_mm_sub_pd(hxy, lxy), zero);
+            let dz = _mm_max_sd(_mm_sub_sd(hz, lz), zero);
+            let dx = _mm_cvtsd_f64(dxy);
+            let dy = _mm_cvtsd_f64(_mm_unpackhi_pd(dxy, dxy));
+            let dz = _mm_cvtsd_f64(dz);
+            2.0 * (dx * dy + dy * dz + dz * dx)
+        }
+    }
+
+    /// True when the SIMD kernels run: the CPU has AVX2 (checked once, then cached by the
+    /// standard library) and [`super::force_scalar`] has not switched them off.
+    #[inline]
+    pub fn available() -> bool {
+        std::arch::is_x86_feature_detected!("avx2")
+            && !super::SCALAR_ONLY.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// Every primitive's three bins into `tags` by AVX2; false (nothing written) without it.
+    pub fn tags(refs: &[PrimRef], tags: &mut [[u8; 4]], map: &BinMap) -> bool {
+        if !available() {
+            return false;
+        }
+        // SAFETY: AVX2 is present (checked just above).
+        unsafe { tags_avx2(refs, tags, map) };
+        true
+    }
+
+    /// The partition by AVX2; `None` (nothing written) without it.
+    pub fn partition(
+        src: &[PrimRef],
+        tags: &[[u8; 4]],
+        left: &mut [PrimRef],
+        right: &mut [PrimRef],
+        axis: usize,
+        split: usize,
+    ) -> Option<(CentroidBox, CentroidBox)> {
+        if !available() {
+            return None;
+        }
+        // SAFETY: AVX2 is present (checked just above).
+        Some(unsafe { partition_avx2(src, tags, left, right, axis, split) })
+    }
+
+    /// `(lo + hi) · 0.5` of the three axes (lane 3: 0), the exact centroid.
+    ///
+    /// # Safety
+    /// AVX2 must be enabled in the caller.
+    #[inline(always)]
+    unsafe fn centroid(r: &PrimRef) -> __m256d {
+        // SAFETY: AVX2 is enabled in the caller; the loads read the two 16-byte lanes of `r`.
+        unsafe {
+            let keep = _mm_castsi128_ps(_mm_setr_epi32(-1, -1, -1, 0));
+            let lo = _mm_and_ps(_mm_loadu_ps(&r.lo as *const _ as *const f32), keep);
+            let hi = _mm_and_ps(_mm_loadu_ps(&r.hi as *const _ as *const f32), keep);
+            _mm256_mul_pd(
+                _mm256_add_pd(_mm256_cvtps_pd(lo), _mm256_cvtps_pd(hi)),
+                _mm256_set1_pd(0.5),
+            )
+        }
+    }
+
+    /// Every primitive's three bins into `tags`.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[target_feature(enable = "avx2")]
+    unsafe fn tags_avx2(refs: &[PrimRef], tags: &mut [[u8; 4]], map: &BinMap) {
+        let origin = _mm256_setr_pd(map.origin[0], map.origin[1], map.origin[2], 0.0);
+        let scale = _mm256_setr_pd(map.scale[0], map.scale[1], map.scale[2], 0.0);
+        let top = _mm256_set1_pd((map.bins - 1) as f64);
+        for (r, t) in refs.iter().zip(tags.iter_mut()) {
+            // SAFETY: AVX2 is enabled; `centroid` reads `r` only.
+            let c = unsafe { centroid(r) };
+            // `min(t, top)` with `t` first: `vminpd` returns its second operand when the
+            // first is NaN, as `f64::min` returns the non-NaN one (t is never NaN here).
+            let b = _mm256_min_pd(_mm256_mul_pd(_mm256_sub_pd(c, origin), scale), top);
+            let i = _mm256_cvttpd_epi32(b);
+            let packed = _mm_packus_epi16(_mm_packus_epi32(i, i), _mm_setzero_si128());
+            let w = _mm_cvtsi128_si32(packed) as u32;
+            *t = w.to_le_bytes();
+            t[3] = 0;
+        }
+    }
+
+    /// The stable partition of `super::partition_into`, centroid boxes in `f64` lanes.
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[target_feature(enable = "avx2")]
+    unsafe fn partition_avx2(
+        src: &[PrimRef],
+        tags: &[[u8; 4]],
+        left: &mut [PrimRef],
+        right: &mut [PrimRef],
+        axis: usize,
+        split: usize,
+    ) -> (CentroidBox, CentroidBox) {
+        assert_eq!(src.len(), left.len() + right.len());
+        assert_eq!(src.len(), tags.len());
+        let inf = _mm256_set1_pd(f64::INFINITY);
+        let ninf = _mm256_set1_pd(f64::NEG_INFINITY);
+        let (mut lmin, mut lmax, mut rmin, mut rmax) = (inf, ninf, inf, ninf);
+        let (mut li, mut ri) = (0usize, 0usize);
+        for (r, t) in src.iter().zip(tags) {
+            // SAFETY: AVX2 is enabled; `centroid` reads `r` only.
+            let c = unsafe { centroid(r) };
+            if (t[axis] as usize) < split {
+                left[li] = *r;
+                li += 1;
+                lmin = _mm256_min_pd(c, lmin);
+                lmax = _mm256_max_pd(c, lmax);
+            } else {
+                right[ri] = *r;
+                ri += 1;
+                rmin = _mm256_min_pd(c, rmin);
+                rmax = _mm256_max_pd(c, rmax);
+            }
+        }
+        let out = |v: __m256d| {
+            let mut a = [0.0f64; 4];
+            // SAFETY: AVX2 is enabled; the store writes the four lanes of `a`.
+            unsafe { _mm256_storeu_pd(a.as_mut_ptr(), v) };
+            [a[0], a[1], a[2]]
+        };
+        (
+            CentroidBox {
+                min: out(lmin),
+                max: out(lmax),
+            },
+            CentroidBox {
+                min: out(rmin),
+                max: out(rmax),
+            },
+        )
+    }
 }

@@ -35,7 +35,7 @@ use rayon::prelude::*;
 
 use emc_core::{Aabb, LayoutSpec};
 
-use crate::build::{build_aabbs, Builder};
+use crate::build::{build_aabbs_inline, Builder};
 use crate::bvh::atrbvh::{restructure as restructure_atr, AtrConfig};
 use crate::bvh::collapse::collapse_bvh;
 use crate::bvh::refit::CollapseParams;
@@ -272,7 +272,7 @@ impl Accel {
             }
             let tris = gather_triangles(vertices, indices)?;
             let bvh2 = build_bvh2(&tris, &opts)?;
-            *bvh = WideBvh::from_bvh2_width(&bvh2, &tris, width)?;
+            *bvh = WideBvh::from_own_bvh2(&bvh2, &tris, width)?;
             Ok(())
         };
         match pool {
@@ -423,7 +423,7 @@ pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceE
             collapse
         },
     };
-    let out = build_aabbs(aabbs, &bopts).map_err(|e| TraceError::Build(e.to_string()))?;
+    let out = build_aabbs_inline(aabbs, &bopts).map_err(|e| TraceError::Build(e.to_string()))?;
     if !restructure {
         return Ok(out.bvh);
     }

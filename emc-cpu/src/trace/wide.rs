@@ -196,7 +196,7 @@ impl WideBvh {
     /// and leaves of whole subtrees (see `Plan`); the 4-wide tree is the optimal cover with
     /// up to four children over the same leaves.
     pub fn from_bvh2(bvh: &Bvh, tris: &[[Vec3; 3]]) -> Result<WideBvh, TraceError> {
-        WideBvh::collapse_bvh2(bvh, tris, true, true)
+        WideBvh::collapse_bvh2(bvh, tris, true, true, false)
     }
 
     /// [`WideBvh::from_bvh2`] building only the tree of `width` (4 or 8; any other value
@@ -206,10 +206,30 @@ impl WideBvh {
         tris: &[[Vec3; 3]],
         width: usize,
     ) -> Result<WideBvh, TraceError> {
+        WideBvh::collapse_width(bvh, tris, width, false)
+    }
+
+    /// [`WideBvh::from_bvh2_width`] for a BVH2 from this crate's own builders: the validation
+    /// is skipped in release builds (debug builds and the tests still run it), because those
+    /// builders place every triangle once and bound it by construction.
+    pub(crate) fn from_own_bvh2(
+        bvh: &Bvh,
+        tris: &[[Vec3; 3]],
+        width: usize,
+    ) -> Result<WideBvh, TraceError> {
+        WideBvh::collapse_width(bvh, tris, width, !cfg!(debug_assertions))
+    }
+
+    fn collapse_width(
+        bvh: &Bvh,
+        tris: &[[Vec3; 3]],
+        width: usize,
+        trusted: bool,
+    ) -> Result<WideBvh, TraceError> {
         match width {
-            WIDTH => WideBvh::collapse_bvh2(bvh, tris, true, false),
-            WIDTH8 => WideBvh::collapse_bvh2(bvh, tris, false, true),
-            _ => WideBvh::collapse_bvh2(bvh, tris, true, true),
+            WIDTH => WideBvh::collapse_bvh2(bvh, tris, true, false, trusted),
+            WIDTH8 => WideBvh::collapse_bvh2(bvh, tris, false, true, trusted),
+            _ => WideBvh::collapse_bvh2(bvh, tris, true, true, trusted),
         }
     }
 
@@ -258,6 +278,7 @@ impl WideBvh {
         tris: &[[Vec3; 3]],
         four: bool,
         eight: bool,
+        trusted: bool,
     ) -> Result<WideBvh, TraceError> {
         if tris.is_empty() {
             return Err(TraceError::NoTriangles);
@@ -265,18 +286,20 @@ impl WideBvh {
         if tris.len() > MAX_TRIANGLES {
             return Err(TraceError::TooManyTriangles(tris.len()));
         }
-        let aabbs: Vec<Aabb> = tris
-            .iter()
-            .map(|t| Aabb::from_triangle(t[0], t[1], t[2]))
-            .collect();
-        if let Some(i) = aabbs.iter().position(|b| !b.is_finite()) {
+        if let Some(i) = tris.iter().position(|t| !t.iter().all(|v| v.is_finite())) {
             return Err(TraceError::NonFinite(i));
         }
-        bvh.validate(&aabbs).map_err(TraceError::InvalidBvh)?;
-        let max_abs = aabbs.iter().fold(0.0f32, |m, b| {
-            m.max(b.min.abs().max_element())
-                .max(b.max.abs().max_element())
-        });
+        if !trusted {
+            let aabbs: Vec<Aabb> = tris
+                .iter()
+                .map(|t| Aabb::from_triangle(t[0], t[1], t[2]))
+                .collect();
+            bvh.validate(&aabbs).map_err(TraceError::InvalidBvh)?;
+        }
+        let max_abs = tris
+            .iter()
+            .flatten()
+            .fold(0.0f32, |m, v| m.max(v.abs().max_element()));
         // Child boxes are padded by 2^-16 of the largest coordinate: the triangle test rounds
         // `vertex − origin` to ulps of the coordinates, so with needles thinner than an ulp it
         // can report a hit a hair outside the exact box; the pad (2^7 ulps) keeps such hits
@@ -284,7 +307,7 @@ impl WideBvh {
         let pad = max_abs * (1.0 / 65536.0);
         let mut packets = Vec::with_capacity(tris.len() / 2);
         let mut leaves = 0;
-        let mut prims = Vec::new();
+        let mut prims = (Vec::new(), Vec::new());
         if !eight {
             // The 4-wide tree alone chooses its leaves.
             let plan4 = Plan::<WIDTH>::new(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false);
@@ -770,13 +793,14 @@ fn collapse<const W: usize>(
 /// return its child code.
 fn emit_leaf(
     packets: &mut Vec<TriPacket>,
-    prims: &mut Vec<u32>,
+    (prims, stack): &mut (Vec<u32>, Vec<u32>),
     bvh: &Bvh,
     n: u32,
     tris: &[[Vec3; 3]],
 ) -> u32 {
     prims.clear();
-    let mut stack = vec![n];
+    stack.clear();
+    stack.push(n);
     while let Some(i) = stack.pop() {
         let node = &bvh.nodes[i as usize];
         if node.is_leaf() {
