@@ -3,6 +3,7 @@
 //! ([`workload`]) and the library API ([`api`]). `emc render` drives it from the command line.
 
 pub mod api;
+pub mod cover;
 pub mod image;
 pub mod intersect;
 pub mod traverse;

@@ -644,18 +644,7 @@ impl<const W: usize> Plan<W> {
             let (l, r) = (node.left() as usize, node.right() as usize);
             let p = prims[l] + prims[r];
             prims[at] = p;
-            let (cl, cr) = (plan.cost[l], plan.cost[r]);
-            let mut dist = [f32::INFINITY; W];
-            let mut split = [0u8; W];
-            for j in 2..=W {
-                for k in 1..j {
-                    let c = cl[k - 1] + cr[j - k - 1];
-                    if c < dist[j - 1] {
-                        dist[j - 1] = c;
-                        split[j - 1] = k as u8;
-                    }
-                }
-            }
+            let (dist, split) = crate::trace::cover::dist(&plan.cost[l], &plan.cost[r]);
             let inner = COST_NODE * a + dist[W - 1];
             let as_leaf = if may_leaf(i, p) {
                 leaf_cost(a, p)

@@ -450,17 +450,7 @@ impl<const W: usize> TopPlan<W> {
             let (cl, bl) = plan.of(t.left, blocks);
             let (cr, br) = plan.of(t.right, blocks);
             let bx = bl.union(&br);
-            let mut dist = [f32::INFINITY; W];
-            let mut split = [0u8; W];
-            for j in 2..=W {
-                for k in 1..j {
-                    let c = cl[k - 1] + cr[j - k - 1];
-                    if c < dist[j - 1] {
-                        dist[j - 1] = c;
-                        split[j - 1] = k as u8;
-                    }
-                }
-            }
+            let (dist, split) = crate::trace::cover::dist(&cl, &cr);
             let mut cost = [0.0f32; W];
             cost[0] = COST_NODE * half_area(&bx) + dist[W - 1];
             for j in 2..=W {
