@@ -1,0 +1,257 @@
+//! The other ray tracers measured beside emc in one process by `emc compare`, and the ray loop
+//! every tracer (emc's presets and each peer) is timed with, as the peer harness in
+//! `../shared/peers/embree/embree_bench.c` times Embree.
+//!
+//! The loop ([`trace_closest`], [`trace_occluded`]): one single-ray call per ray in protocol
+//! order; one thread is a plain loop on the calling thread, `N` threads are the caller plus
+//! `N − 1` scoped threads taking chunks of [`CHUNK`] rays in order, each with flush-to-zero and
+//! denormals-are-zero set while it traces ([`FtzGuard`]), as the harness sets them. The peers
+//! themselves ([`embree`]: Embree 3 through a hand-written binding; [`obvhs`]: the obvhs crate)
+//! exist only with the `peers` cargo feature, so a plain build needs neither.
+
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
+use std::sync::Mutex;
+use std::time::{Duration, Instant};
+
+use glam::Vec3;
+
+use crate::trace::workload::{all_ao_rays, primary_rays, AoCounts, Camera, CameraMode, SceneFrame};
+use crate::trace::{Accel, Hit, Ray};
+
+#[cfg(feature = "peers")]
+pub mod embree;
+#[cfg(feature = "peers")]
+pub mod obvhs;
+
+/// Rays a thread takes at a time when several trace (the harness's `CHUNK`).
+pub const CHUNK: usize = 4096;
+
+/// MXCSR bit 15: flush-to-zero.
+const MXCSR_FTZ: u32 = 1 << 15;
+/// MXCSR bit 6: denormals-are-zero.
+const MXCSR_DAZ: u32 = 1 << 6;
+
+/// Sets flush-to-zero and denormals-are-zero on the current thread (x86-64 SSE control
+/// register; nothing elsewhere) and restores the previous mode when dropped.
+#[derive(Debug)]
+pub struct FtzGuard {
+    /// MXCSR before the guard set it.
+    #[cfg(target_arch = "x86_64")]
+    previous: u32,
+}
+
+impl FtzGuard {
+    /// Turn FTZ and DAZ on for this thread until the guard is dropped.
+    pub fn new() -> FtzGuard {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let previous = read_mxcsr();
+            write_mxcsr(previous | MXCSR_FTZ | MXCSR_DAZ);
+            FtzGuard { previous }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        FtzGuard {}
+    }
+
+    /// True when this thread's floating-point mode flushes denormals (always false off x86-64).
+    pub fn active() -> bool {
+        #[cfg(target_arch = "x86_64")]
+        {
+            read_mxcsr() & (MXCSR_FTZ | MXCSR_DAZ) == MXCSR_FTZ | MXCSR_DAZ
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        false
+    }
+}
+
+impl Default for FtzGuard {
+    fn default() -> Self {
+        FtzGuard::new()
+    }
+}
+
+impl Drop for FtzGuard {
+    fn drop(&mut self) {
+        #[cfg(target_arch = "x86_64")]
+        write_mxcsr(self.previous);
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+fn read_mxcsr() -> u32 {
+    let mut v = 0u32;
+    // SAFETY: `stmxcsr` stores the 4-byte SSE control register to the address given, which is
+    // `v`, a live, writable, aligned u32; it touches nothing else (no stack, no flags).
+    unsafe {
+        core::arch::asm!(
+            "stmxcsr [{p}]",
+            p = in(reg) &mut v as *mut u32,
+            options(nostack, preserves_flags)
+        );
+    }
+    v
+}
+
+#[cfg(target_arch = "x86_64")]
+fn write_mxcsr(v: u32) {
+    // SAFETY: `ldmxcsr` loads the SSE control register from `v`, a live aligned u32; callers
+    // only pass a value read by `stmxcsr` with at most the FTZ and DAZ bits added, so no
+    // reserved bit is set (which would fault) and no exception is unmasked. The mode change
+    // alters only how denormal floats round, never memory safety.
+    unsafe {
+        core::arch::asm!(
+            "ldmxcsr [{p}]",
+            p = in(reg) &v as *const u32,
+            options(nostack, readonly, preserves_flags)
+        );
+    }
+}
+
+/// Run `work` on the calling thread and `threads − 1` scoped threads, each under an
+/// [`FtzGuard`]; returns the wall time from before the first spawn to after the last join.
+fn on_threads(threads: usize, work: &(dyn Fn() + Sync)) -> Duration {
+    let t0 = Instant::now();
+    std::thread::scope(|s| {
+        for _ in 1..threads.max(1) {
+            s.spawn(|| {
+                let _ftz = FtzGuard::new();
+                work();
+            });
+        }
+        let _ftz = FtzGuard::new();
+        work();
+    });
+    t0.elapsed()
+}
+
+/// Closest hits of `rays`, one `hit(state, ray)` call per ray in order, on `threads` threads
+/// (chunks of [`CHUNK`]); `state` makes each thread's private state (an intersect context).
+/// Returns one answer per ray and the wall time.
+pub fn trace_closest<S>(
+    rays: &[Ray],
+    threads: usize,
+    state: impl Fn() -> S + Sync,
+    hit: impl Fn(&mut S, &Ray) -> Option<Hit> + Sync,
+) -> (Vec<Option<Hit>>, Duration) {
+    let mut out: Vec<Option<Hit>> = vec![None; rays.len()];
+    let elapsed = {
+        let work = Mutex::new(out.chunks_mut(CHUNK).zip(rays.chunks(CHUNK)));
+        on_threads(threads, &|| {
+            let mut s = state();
+            loop {
+                let next = work.lock().unwrap_or_else(|e| e.into_inner()).next();
+                let Some((o, r)) = next else { break };
+                for (h, ray) in o.iter_mut().zip(r) {
+                    *h = hit(&mut s, ray);
+                }
+            }
+        })
+    };
+    (out, elapsed)
+}
+
+/// How many of `rays` are occluded, one `occluded(state, ray)` call per ray in order, on
+/// `threads` threads (chunks of [`CHUNK`]); returns the count and the wall time.
+pub fn trace_occluded<S>(
+    rays: &[Ray],
+    threads: usize,
+    state: impl Fn() -> S + Sync,
+    occluded: impl Fn(&mut S, &Ray) -> bool + Sync,
+) -> (u64, Duration) {
+    let next = AtomicUsize::new(0);
+    let count = AtomicU64::new(0);
+    let elapsed = on_threads(threads, &|| {
+        let mut s = state();
+        let mut local = 0u64;
+        loop {
+            let b = next.fetch_add(CHUNK, Ordering::Relaxed);
+            if b >= rays.len() {
+                break;
+            }
+            for ray in &rays[b..(b + CHUNK).min(rays.len())] {
+                local += occluded(&mut s, ray) as u64;
+            }
+        }
+        count.fetch_add(local, Ordering::Relaxed);
+    });
+    (count.into_inner(), elapsed)
+}
+
+/// A structure the protocol's rays can be traced through with the loop above.
+pub trait Tracer: Sync {
+    /// Closest hits of `rays` (tnear..tfar of each ray) on `threads` threads, with the wall time.
+    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Duration);
+    /// Occluded count of `rays` on `threads` threads, with the wall time.
+    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Duration);
+}
+
+impl Tracer for Accel {
+    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Duration) {
+        trace_closest(rays, threads, || (), |_, r| self.intersect(r))
+    }
+    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Duration) {
+        trace_occluded(rays, threads, || (), |_, r| Accel::occluded(self, r))
+    }
+}
+
+/// The protocol's rays of one scene: the primary rays and what the AO rays need.
+#[derive(Debug, Clone)]
+pub struct Protocol {
+    /// The scene's triangles in id order (normals of the AO rays' origins).
+    pub tris: Vec<[Vec3; 3]>,
+    /// Bounds and diagonal of the referenced vertices.
+    pub frame: SceneFrame,
+    /// The primary rays, `res × res` in 8×8-tile order.
+    pub primary: Vec<Ray>,
+}
+
+impl Protocol {
+    /// The protocol for `tris` seen from `mode` at `res × res` (rays made on the current rayon
+    /// pool).
+    pub fn new(tris: Vec<[Vec3; 3]>, mode: CameraMode, res: u32) -> Protocol {
+        let frame = SceneFrame::of(&tris);
+        let cam = Camera::protocol(&frame, mode);
+        let primary = primary_rays(&cam, res, res);
+        Protocol {
+            tris,
+            frame,
+            primary,
+        }
+    }
+
+    /// The AO rays of a tracer's own primary hits (4 per hit, primary order).
+    pub fn ao_rays(&self, hits: &[Option<Hit>]) -> Vec<Ray> {
+        all_ao_rays(&self.primary, hits, &self.tris, self.frame.diag).0
+    }
+
+    /// Trace the whole protocol once through `t` on `threads` threads: its counts, its AO rays,
+    /// and the primary and AO wall times.
+    pub fn run(&self, t: &dyn Tracer, threads: usize) -> ProtocolRun {
+        let (hits, primary_time) = t.closest(&self.primary, threads);
+        let ao = self.ao_rays(&hits);
+        let (ao_occluded, ao_time) = t.occluded(&ao, threads);
+        ProtocolRun {
+            counts: AoCounts {
+                primary_hits: hits.iter().filter(|h| h.is_some()).count() as u64,
+                ao_rays: ao.len() as u64,
+                ao_occluded,
+            },
+            ao,
+            primary_time,
+            ao_time,
+        }
+    }
+}
+
+/// One pass of the protocol through one tracer.
+#[derive(Debug, Clone)]
+pub struct ProtocolRun {
+    /// Primary hits, AO rays, AO occluded.
+    pub counts: AoCounts,
+    /// The AO rays generated from this tracer's primary hits.
+    pub ao: Vec<Ray>,
+    /// Wall time of the primary rays.
+    pub primary_time: Duration,
+    /// Wall time of the AO rays.
+    pub ao_time: Duration,
+}
