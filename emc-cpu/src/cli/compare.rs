@@ -610,7 +610,7 @@ pub fn run(args: &CompareArgs) -> anyhow::Result<()> {
                 };
                 writeln!(
                     f,
-                    "{name},{ntris},{},{},{},{},{},{},{:.3},{:.3},{:.4},{:.4},{},{},{},{},{},{},{},{},{},{}",
+                    "{name},{ntris},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{},{},{}",
                     match mode {
                         CameraMode::Outside => "outside",
                         CameraMode::Center => "center",

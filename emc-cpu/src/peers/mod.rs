@@ -15,7 +15,7 @@ use std::time::{Duration, Instant};
 
 use glam::Vec3;
 
-use crate::trace::workload::{all_ao_rays, primary_rays, AoCounts, Camera, CameraMode, SceneFrame};
+use crate::trace::workload::{pcg_hash, primary_rays, AoCounts, Camera, CameraMode, SceneFrame};
 use crate::trace::{Accel, Hit, Ray};
 
 #[cfg(feature = "peers")]
@@ -219,9 +219,10 @@ impl Protocol {
         }
     }
 
-    /// The AO rays of a tracer's own primary hits (4 per hit, primary order).
+    /// The AO rays of a tracer's own primary hits (4 per hit, primary order), as the harness
+    /// computes them ([`harness_ao_rays`]).
     pub fn ao_rays(&self, hits: &[Option<Hit>]) -> Vec<Ray> {
-        all_ao_rays(&self.primary, hits, &self.tris, self.frame.diag).0
+        harness_ao_rays(&self.primary, hits, &self.tris, self.frame.diag)
     }
 
     /// Trace the whole protocol once through `t` on `threads` threads: its counts, its AO rays,
@@ -241,6 +242,56 @@ impl Protocol {
             ao_time,
         }
     }
+}
+
+/// The protocol's AO rays of every primary hit (4 per hit, in primary order), with the peer
+/// harness' arithmetic, so that its rays and counts are reproduced bit for bit: the normal
+/// divided by its length (`(0, 1, 0)` for a zero-area triangle), the angle `φ = 2π·u2` and its
+/// cosine and sine in `f64` rounded to `f32`, the direction divided by its length; under
+/// FTZ/DAZ, as the harness runs. (`workload::ao_rays` takes φ, cos and sin in `f32` and
+/// normalizes by a reciprocal: its directions differ from these in the low bits of most rays,
+/// which moves AO counts by a ray or so.)
+pub fn harness_ao_rays(
+    primary: &[Ray],
+    hits: &[Option<Hit>],
+    tris: &[[Vec3; 3]],
+    diag: f64,
+) -> Vec<Ray> {
+    let _ftz = FtzGuard::new();
+    let eps = (1e-4 * diag) as f32;
+    let tfar = (0.1 * diag) as f32;
+    let mut out = Vec::with_capacity(4 * hits.iter().filter(|h| h.is_some()).count());
+    for (i, (ray, hit)) in primary.iter().zip(hits).enumerate() {
+        let Some(hit) = hit else { continue };
+        let p = ray.origin + hit.t * ray.dir;
+        let t = &tris[hit.prim as usize];
+        let c = (t[1] - t[0]).cross(t[2] - t[0]);
+        let l = c.dot(c).sqrt();
+        let mut n = if l > 0.0 { c / l } else { Vec3::Y };
+        if n.dot(ray.dir) > 0.0 {
+            n = -n;
+        }
+        let o = p + n * eps;
+        // Duff et al. 2017 orthonormal basis around n.
+        let sign = if n.z >= 0.0 { 1.0f32 } else { -1.0 };
+        let a = -1.0 / (sign + n.z);
+        let b = n.x * n.y * a;
+        let b1 = Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x);
+        let b2 = Vec3::new(b, sign + n.y * n.y * a, -n.y);
+        for k in 0..4u32 {
+            let h1 = pcg_hash((i as u32).wrapping_mul(4).wrapping_add(k));
+            let h2 = pcg_hash(h1);
+            let u1 = (h1 >> 8) as f32 * (1.0 / 16_777_216.0);
+            let u2 = (h2 >> 8) as f32 * (1.0 / 16_777_216.0);
+            let r = u1.sqrt();
+            let phi = 2.0 * std::f64::consts::PI * u2 as f64;
+            let (lx, ly) = (r * phi.cos() as f32, r * phi.sin() as f32);
+            let lz = (1.0 - u1).max(0.0).sqrt();
+            let d = b1 * lx + b2 * ly + n * lz;
+            out.push(Ray::segment(o, d / d.dot(d).sqrt(), 0.0, tfar));
+        }
+    }
+    out
 }
 
 /// One pass of the protocol through one tracer.
