@@ -6,7 +6,7 @@
 //! order; one thread is a plain loop on the calling thread, `N` threads are the caller plus
 //! `N − 1` scoped threads taking chunks of [`CHUNK`] rays in order, each with flush-to-zero and
 //! denormals-are-zero set while it traces ([`FtzGuard`]), as the harness sets them. The peers
-//! themselves ([`embree`]: Embree 3 through a hand-written binding; [`obvhs`]: the obvhs crate)
+//! themselves (`embree`: Embree 3 through a hand-written binding; `obvhs`: the obvhs crate)
 //! exist only with the `peers` cargo feature, so a plain build needs neither.
 
 use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
