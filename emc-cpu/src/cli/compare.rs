@@ -18,7 +18,8 @@ use std::time::{Duration, Instant};
 use anyhow::{bail, Context};
 use glam::Vec3;
 
-use crate::peers::{Protocol, Tracer};
+use crate::cputime::process_cpu_time;
+use crate::peers::{Protocol, Timing, Tracer};
 use crate::scene::{load_with, SceneOptions};
 use crate::trace::workload::{AoCounts, CameraMode};
 use crate::trace::{Accel, BuildOptions, NodeTest, Preset};
@@ -175,14 +176,22 @@ impl Built<'_> {
 pub struct Row {
     /// The configuration.
     pub config: Config,
-    /// Median cold build, ms.
+    /// Median cold build, wall ms.
     pub cold_ms: f64,
-    /// Median warm build, ms.
+    /// Median warm build, wall ms.
     pub warm_ms: f64,
-    /// Median primary Mrays/s.
+    /// Median cold build, process CPU ms.
+    pub cold_cpu_ms: f64,
+    /// Median warm build, process CPU ms.
+    pub warm_cpu_ms: f64,
+    /// Median primary Mrays/s (wall).
     pub primary_mrays: f64,
-    /// Median AO Mrays/s.
+    /// Median AO Mrays/s (wall).
     pub ao_mrays: f64,
+    /// Median primary M rays per CPU-second of the tracing threads.
+    pub primary_mrays_cpu: f64,
+    /// Median AO M rays per CPU-second of the tracing threads.
+    pub ao_mrays_cpu: f64,
     /// The protocol counts of this configuration's own rays.
     pub counts: AoCounts,
     /// Bytes of the traced structure.
@@ -229,18 +238,44 @@ pub fn ratios(r: &Row, b: &Best) -> [f64; 4] {
     ]
 }
 
-/// Cold and warm build times of one configuration; returns the kept structure.
+/// Median wall and CPU ms of one kind of build.
+#[derive(Clone, Copy, Debug, Default)]
+struct BuildMs {
+    wall: f64,
+    cpu: f64,
+}
+
+fn medians(t: &[Timing]) -> BuildMs {
+    let wall: Vec<Duration> = t.iter().map(|t| t.wall).collect();
+    let cpu: Vec<Duration> = t.iter().map(|t| t.cpu).collect();
+    BuildMs {
+        wall: median_ms(&wall),
+        cpu: median_ms(&cpu),
+    }
+}
+
+/// Process CPU time (every thread: rayon workers, Embree's) spent in `f`, with its result.
+fn with_cpu<R>(f: impl FnOnce() -> R) -> (R, Duration) {
+    let c0 = process_cpu_time().unwrap_or_default();
+    let r = f();
+    let c = process_cpu_time().unwrap_or_default().saturating_sub(c0);
+    (r, c)
+}
+
+/// Cold and warm build times (wall as each build reports it, process CPU around it) of one
+/// configuration; returns the kept structure.
 fn time_builds<B>(
     mut cold: impl FnMut() -> anyhow::Result<(B, Duration)>,
     mut warm: impl FnMut(&mut B) -> anyhow::Result<Duration>,
-) -> anyhow::Result<(B, f64, f64)> {
+) -> anyhow::Result<(B, BuildMs, BuildMs)> {
     drop(cold()?.0); // warm-up
     let mut colds = Vec::with_capacity(BUILDS);
     let mut kept: Option<B> = None;
     for _ in 0..BUILDS {
         drop(kept.take());
-        let (b, t) = cold()?;
-        colds.push(t);
+        let (r, cpu) = with_cpu(&mut cold);
+        let (b, wall) = r?;
+        colds.push(Timing { wall, cpu });
         kept = Some(b);
     }
     let Some(mut b) = kept else {
@@ -248,9 +283,10 @@ fn time_builds<B>(
     };
     let mut warms = Vec::with_capacity(BUILDS);
     for _ in 0..BUILDS {
-        warms.push(warm(&mut b)?);
+        let (r, cpu) = with_cpu(|| warm(&mut b));
+        warms.push(Timing { wall: r?, cpu });
     }
-    Ok((b, median_ms(&colds), median_ms(&warms)))
+    Ok((b, medians(&colds), medians(&warms)))
 }
 
 /// What the process holds across scenes: the emc/obvhs pool and the Embree device.
@@ -317,7 +353,7 @@ fn build<'a>(
     vertices: &[Vec3],
     indices: &[[u32; 3]],
     #[cfg(feature = "peers")] mesh: &'a crate::peers::embree::Mesh,
-) -> anyhow::Result<(Built<'a>, f64, f64)> {
+) -> anyhow::Result<(Built<'a>, BuildMs, BuildMs)> {
     let pool = &ctx.pool;
     match c {
         Config::Emc(p) => {
@@ -403,7 +439,7 @@ fn measure_scene(
     );
     #[cfg(feature = "peers")]
     let mesh = crate::peers::embree::Mesh::new(&scene.vertices, &scene.indices)?;
-    let mut built: Vec<(Config, Built, f64, f64)> = Vec::with_capacity(configs.len());
+    let mut built: Vec<(Config, Built, BuildMs, BuildMs)> = Vec::with_capacity(configs.len());
     for &c in configs {
         let (b, cold, warm) = build(
             c,
@@ -414,7 +450,12 @@ fn measure_scene(
             &mesh,
         )
         .with_context(|| format!("{}: building {}", scene.name, c.name()))?;
-        eprintln!("#   {:<14} cold {cold:.2} ms, warm {warm:.2} ms", c.name());
+        eprintln!(
+            "#   {:<14} cold {:.2} ms, warm {:.2} ms",
+            c.name(),
+            cold.wall,
+            warm.wall
+        );
         built.push((c, b, cold, warm));
     }
     // Warm-up pass: each configuration's counts and its own AO rays.
@@ -450,14 +491,22 @@ fn measure_scene(
     let rows = built
         .iter()
         .enumerate()
-        .map(|(k, (c, b, cold, warm))| Row {
-            config: *c,
-            cold_ms: *cold,
-            warm_ms: *warm,
-            primary_mrays: mrays(protocol.primary.len(), median_ms(&prim_t[k])),
-            ao_mrays: mrays(first[k].ao.len(), median_ms(&ao_t[k])),
-            counts: first[k].counts,
-            memory_bytes: b.memory_bytes(),
+        .map(|(k, (c, b, cold, warm))| {
+            let (p, a) = (medians(&prim_t[k]), medians(&ao_t[k]));
+            let (np, na) = (protocol.primary.len(), first[k].ao.len());
+            Row {
+                config: *c,
+                cold_ms: cold.wall,
+                warm_ms: warm.wall,
+                cold_cpu_ms: cold.cpu,
+                warm_cpu_ms: warm.cpu,
+                primary_mrays: mrays(np, p.wall),
+                ao_mrays: mrays(na, a.wall),
+                primary_mrays_cpu: mrays(np, p.cpu),
+                ao_mrays_cpu: mrays(na, a.cpu),
+                counts: first[k].counts,
+                memory_bytes: b.memory_bytes(),
+            }
         })
         .collect();
     Ok(SceneResult {
@@ -523,6 +572,21 @@ fn print_table(name: &str, ntris: usize, mode: CameraMode, rows: &[Row], args: &
             r.memory_bytes as f64 / (1u64 << 20) as f64
         );
     }
+    println!("the same per CPU time (which other tenants of a shared machine cannot take):");
+    println!(
+        "{:<14} {:>11} {:>11} {:>13} {:>13}",
+        "config", "cold cpu ms", "warm cpu ms", "prim Mr/cpu-s", "AO Mr/cpu-s"
+    );
+    for r in rows {
+        println!(
+            "{:<14} {:>11.2} {:>11.2} {:>13.2} {:>13.2}",
+            r.config.name(),
+            r.cold_cpu_ms,
+            r.warm_cpu_ms,
+            r.primary_mrays_cpu,
+            r.ao_mrays_cpu
+        );
+    }
     match best {
         Some(_) => println!(
             "/best: emc's figure over the best peer's of this run (build: lowest ms, below 1 is faster; Mrays/s: highest, above 1 is faster)"
@@ -535,7 +599,7 @@ fn print_table(name: &str, ntris: usize, mode: CameraMode, rows: &[Row], args: &
 }
 
 /// CSV header of `--csv`.
-pub const CSV_HEADER: &str = "scene,tris,camera,config,peer,threads,res,runs,build_cold_ms,build_warm_ms,primary_mrays,ao_mrays,primary_hits,ao_rays,ao_occluded,mem_bytes,cold_vs_best_peer,warm_vs_best_peer,primary_vs_best_peer,ao_vs_best_peer,loadavg_start,loadavg_end";
+pub const CSV_HEADER: &str = "scene,tris,camera,config,peer,threads,res,runs,build_cold_ms,build_warm_ms,build_cold_cpu_ms,build_warm_cpu_ms,primary_mrays,ao_mrays,primary_mrays_cpu,ao_mrays_cpu,primary_hits,ao_rays,ao_occluded,mem_bytes,cold_vs_best_peer,warm_vs_best_peer,primary_vs_best_peer,ao_vs_best_peer,loadavg_start,loadavg_end";
 
 /// Run `emc compare`.
 pub fn run(args: &CompareArgs) -> anyhow::Result<()> {
@@ -610,7 +674,7 @@ pub fn run(args: &CompareArgs) -> anyhow::Result<()> {
                 };
                 writeln!(
                     f,
-                    "{name},{ntris},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{},{},{}",
+                    "{name},{ntris},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{},{},{}",
                     match mode {
                         CameraMode::Outside => "outside",
                         CameraMode::Center => "center",
@@ -622,8 +686,12 @@ pub fn run(args: &CompareArgs) -> anyhow::Result<()> {
                     args.runs,
                     r.cold_ms,
                     r.warm_ms,
+                    r.cold_cpu_ms,
+                    r.warm_cpu_ms,
                     r.primary_mrays,
                     r.ao_mrays,
+                    r.primary_mrays_cpu,
+                    r.ao_mrays_cpu,
                     r.counts.primary_hits,
                     r.counts.ao_rays,
                     r.counts.ao_occluded,

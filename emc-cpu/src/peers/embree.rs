@@ -21,7 +21,7 @@ use std::time::{Duration, Instant};
 
 use glam::Vec3;
 
-use crate::peers::{trace_closest, trace_occluded, Tracer};
+use crate::peers::{trace_closest, trace_occluded, Timing, Tracer};
 use crate::trace::{Hit, Ray};
 
 /// The C declarations, transcribed from `/usr/include/embree3/*.h` of Embree 3.13.5
@@ -680,11 +680,11 @@ fn context(coherent: bool) -> sys::RTCIntersectContext {
 
 impl Tracer for Scene<'_> {
     /// Primary rays: one COHERENT context per thread.
-    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Duration) {
+    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Timing) {
         trace_closest(rays, threads, || context(true), |c, r| self.intersect(r, c))
     }
     /// AO rays: one INCOHERENT context per thread.
-    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Duration) {
+    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Timing) {
         trace_occluded(
             rays,
             threads,

@@ -15,6 +15,7 @@ use std::time::{Duration, Instant};
 
 use glam::Vec3;
 
+use crate::cputime::thread_cpu_time;
 use crate::trace::workload::{pcg_hash, primary_rays, AoCounts, Camera, CameraMode, SceneFrame};
 use crate::trace::{Accel, Hit, Ray};
 
@@ -107,32 +108,49 @@ fn write_mxcsr(v: u32) {
     }
 }
 
+/// Wall time and the CPU time of the threads that did the work.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct Timing {
+    /// Wall time.
+    pub wall: Duration,
+    /// Summed CPU time of the working threads (zero where the platform has no thread clock).
+    pub cpu: Duration,
+}
+
 /// Run `work` on the calling thread and `threads − 1` scoped threads, each under an
-/// [`FtzGuard`]; returns the wall time from before the first spawn to after the last join.
-fn on_threads(threads: usize, work: &(dyn Fn() + Sync)) -> Duration {
+/// [`FtzGuard`]; returns the wall time from before the first spawn to after the last join and
+/// the threads' summed CPU time inside `work`.
+fn on_threads(threads: usize, work: &(dyn Fn() + Sync)) -> Timing {
+    let cpu_ns = AtomicU64::new(0);
+    let timed = || {
+        let _ftz = FtzGuard::new();
+        let c0 = thread_cpu_time();
+        work();
+        let c = thread_cpu_time().saturating_sub(c0);
+        cpu_ns.fetch_add(c.as_nanos() as u64, Ordering::Relaxed);
+    };
     let t0 = Instant::now();
     std::thread::scope(|s| {
         for _ in 1..threads.max(1) {
-            s.spawn(|| {
-                let _ftz = FtzGuard::new();
-                work();
-            });
+            s.spawn(timed);
         }
-        let _ftz = FtzGuard::new();
-        work();
+        timed();
     });
-    t0.elapsed()
+    Timing {
+        wall: t0.elapsed(),
+        cpu: Duration::from_nanos(cpu_ns.into_inner()),
+    }
 }
 
 /// Closest hits of `rays`, one `hit(state, ray)` call per ray in order, on `threads` threads
 /// (chunks of [`CHUNK`]); `state` makes each thread's private state (an intersect context).
-/// Returns one answer per ray and the wall time.
+/// Returns one answer per ray and the times.
 pub fn trace_closest<S>(
     rays: &[Ray],
     threads: usize,
     state: impl Fn() -> S + Sync,
     hit: impl Fn(&mut S, &Ray) -> Option<Hit> + Sync,
-) -> (Vec<Option<Hit>>, Duration) {
+) -> (Vec<Option<Hit>>, Timing) {
     let mut out: Vec<Option<Hit>> = vec![None; rays.len()];
     let elapsed = {
         let work = Mutex::new(out.chunks_mut(CHUNK).zip(rays.chunks(CHUNK)));
@@ -151,13 +169,13 @@ pub fn trace_closest<S>(
 }
 
 /// How many of `rays` are occluded, one `occluded(state, ray)` call per ray in order, on
-/// `threads` threads (chunks of [`CHUNK`]); returns the count and the wall time.
+/// `threads` threads (chunks of [`CHUNK`]); returns the count and the times.
 pub fn trace_occluded<S>(
     rays: &[Ray],
     threads: usize,
     state: impl Fn() -> S + Sync,
     occluded: impl Fn(&mut S, &Ray) -> bool + Sync,
-) -> (u64, Duration) {
+) -> (u64, Timing) {
     let next = AtomicUsize::new(0);
     let count = AtomicU64::new(0);
     let elapsed = on_threads(threads, &|| {
@@ -179,17 +197,17 @@ pub fn trace_occluded<S>(
 
 /// A structure the protocol's rays can be traced through with the loop above.
 pub trait Tracer: Sync {
-    /// Closest hits of `rays` (tnear..tfar of each ray) on `threads` threads, with the wall time.
-    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Duration);
-    /// Occluded count of `rays` on `threads` threads, with the wall time.
-    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Duration);
+    /// Closest hits of `rays` (tnear..tfar of each ray) on `threads` threads, with the times.
+    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Timing);
+    /// Occluded count of `rays` on `threads` threads, with the times.
+    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Timing);
 }
 
 impl Tracer for Accel {
-    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Duration) {
+    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Timing) {
         trace_closest(rays, threads, || (), |_, r| self.intersect(r))
     }
-    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Duration) {
+    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Timing) {
         trace_occluded(rays, threads, || (), |_, r| Accel::occluded(self, r))
     }
 }
@@ -226,7 +244,7 @@ impl Protocol {
     }
 
     /// Trace the whole protocol once through `t` on `threads` threads: its counts, its AO rays,
-    /// and the primary and AO wall times.
+    /// and the primary and AO times.
     pub fn run(&self, t: &dyn Tracer, threads: usize) -> ProtocolRun {
         let (hits, primary_time) = t.closest(&self.primary, threads);
         let ao = self.ao_rays(&hits);
@@ -301,8 +319,8 @@ pub struct ProtocolRun {
     pub counts: AoCounts,
     /// The AO rays generated from this tracer's primary hits.
     pub ao: Vec<Ray>,
-    /// Wall time of the primary rays.
-    pub primary_time: Duration,
-    /// Wall time of the AO rays.
-    pub ao_time: Duration,
+    /// Times of the primary rays.
+    pub primary_time: Timing,
+    /// Times of the AO rays.
+    pub ao_time: Timing,
 }

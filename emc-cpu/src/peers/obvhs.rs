@@ -22,7 +22,7 @@ use ::obvhs::triangle::Triangle;
 use ::obvhs::BvhBuildParams;
 use glam::{Vec3, Vec3A};
 
-use crate::peers::{trace_closest, trace_occluded, Tracer};
+use crate::peers::{trace_closest, trace_occluded, Timing, Tracer};
 use crate::trace::{Hit, Ray};
 
 /// The build parameters measured: obvhs' fastest preset.
@@ -230,10 +230,10 @@ impl Bvh {
 }
 
 impl Tracer for Bvh {
-    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Duration) {
+    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Timing) {
         trace_closest(rays, threads, || (), |_, r| self.intersect(r))
     }
-    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Duration) {
+    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Timing) {
         trace_occluded(rays, threads, || (), |_, r| Bvh::occluded(self, r))
     }
 }
