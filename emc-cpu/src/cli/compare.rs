@@ -8,9 +8,13 @@
 //! [`BUILDS`] rebuilds of the kept one (`Accel::rebuild`; Embree: `rtcUpdateGeometryBuffer` +
 //! commits on the same scene; obvhs: its PLOC builder and tree reused). Wall time; the thread
 //! pools exist before the clock starts (one rayon pool for emc and obvhs, one Embree device).
-//! Traces: one warm-up pass per configuration (its counts and its own AO rays), then `--runs`
-//! passes that alternate the configurations run by run; medians; single-ray calls through
-//! [`crate::peers`]' loop (FTZ/DAZ on every tracing thread, emc's included).
+//! Traces: one warm-up pass per configuration (its counts and its own AO rays, made with the
+//! harness's arithmetic: [`crate::peers::harness_ao_rays`], so emc's AO counts here can differ
+//! by a ray from `emc render`'s), then `--runs` passes that alternate the configurations run by
+//! run; medians; single-ray calls through [`crate::peers`]' loop (FTZ/DAZ on every tracing
+//! thread, emc's included; builds run in the default floating-point mode on every side). Beside
+//! each wall figure, its CPU time (process CPU of a build, thread CPU of the tracing threads),
+//! for runs on a shared machine.
 
 use std::io::Write;
 use std::time::{Duration, Instant};
