@@ -26,7 +26,7 @@ use crate::cputime::process_cpu_time;
 use crate::peers::{Protocol, Timing, Tracer};
 use crate::scene::{load_with, SceneOptions};
 use crate::trace::workload::{AoCounts, CameraMode};
-use crate::trace::{Accel, BuildOptions, NodeTest, Preset};
+use crate::trace::{Accel, BuildOptions, Preset};
 
 /// Builds per cold and per warm median (the harness's `--reps 5`).
 pub const BUILDS: usize = 5;
@@ -146,21 +146,21 @@ fn fmt_load(l: Option<f64>) -> String {
 /// A built structure of one configuration (an Embree scene borrows the device and the mesh;
 /// the marker keeps the lifetime when the peers are compiled out).
 enum Built<'a> {
-    Emc(Accel, std::marker::PhantomData<&'a ()>),
+    Emc(Box<Accel>, std::marker::PhantomData<&'a ()>),
     #[cfg(feature = "peers")]
     Embree(crate::peers::embree::Scene<'a>),
     #[cfg(feature = "peers")]
-    Obvhs(crate::peers::obvhs::Bvh),
+    Obvhs(Box<crate::peers::obvhs::Bvh>),
 }
 
 impl Built<'_> {
     fn tracer(&self) -> &dyn Tracer {
         match self {
-            Built::Emc(a, _) => a,
+            Built::Emc(a, _) => &**a,
             #[cfg(feature = "peers")]
             Built::Embree(s) => s,
             #[cfg(feature = "peers")]
-            Built::Obvhs(b) => b,
+            Built::Obvhs(b) => &**b,
         }
     }
 
@@ -329,7 +329,7 @@ fn describe(configs: &[Config], ctx: &Session) -> Vec<String> {
                     format!(
                         "Accel::build, builder {b}, layout {l}{}, traced {}-wide",
                         if r { " + atrbvh" } else { "" },
-                        NodeTest::fastest().width()
+                        crate::trace::api::default_width()
                     )
                 }
                 #[cfg(feature = "peers")]
@@ -377,7 +377,11 @@ fn build<'a>(
                     Ok(t0.elapsed())
                 },
             )?;
-            Ok((Built::Emc(a, std::marker::PhantomData), cold, warm))
+            Ok((
+                Built::Emc(Box::new(a), std::marker::PhantomData),
+                cold,
+                warm,
+            ))
         }
         #[cfg(feature = "peers")]
         Config::Embree(q) => {
@@ -395,7 +399,7 @@ fn build<'a>(
                 || Ok(pool.install(|| Bvh::build(vertices, indices))?),
                 |b: &mut Bvh| Ok(pool.install(|| b.rebuild(vertices))?),
             )?;
-            Ok((Built::Obvhs(b), cold, warm))
+            Ok((Built::Obvhs(Box::new(b)), cold, warm))
         }
     }
 }
