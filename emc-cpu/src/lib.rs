@@ -12,6 +12,7 @@ pub mod cputime;
 pub mod encode;
 pub mod fuzzing;
 pub mod paper;
+pub mod peers;
 pub mod scene;
 pub mod sort;
 pub mod trace;

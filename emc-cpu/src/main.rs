@@ -27,6 +27,9 @@ enum Verb {
     /// Trace the benchmark protocol (primary, AO, bounce rays) on a scene: Mrays/s, rays per
     /// thread-CPU-second, node and triangle tests per ray; optionally write a shaded PNG.
     Render(emc_cpu::cli::render::RenderArgs),
+    /// emc's presets beside the peers (Embree 3, obvhs; `--features peers`) in one process on
+    /// the benchmark protocol: build ms cold and warm, Mrays/s, counts, memory, ratios.
+    Compare(emc_cpu::cli::compare::CompareArgs),
     /// The main report: the seed's tables, what accuracy costs in time (Pareto front), example
     /// codes; Markdown, CSV, SVG plots and PNG images in an output folder.
     Paper(emc_cpu::cli::paper::PaperArgs),
@@ -66,6 +69,7 @@ fn main() {
         Verb::Layout(a) => emc_cpu::cli::layout::run(&a),
         Verb::Hwsim(a) => emc_cpu::cli::hwsim::run(&a),
         Verb::Render(a) => emc_cpu::cli::render::run(&a),
+        Verb::Compare(a) => emc_cpu::cli::compare::run(&a),
         Verb::Paper(a) => emc_cpu::cli::paper::run(&a),
     };
     if let Err(e) = result {

@@ -2,6 +2,7 @@
 #![forbid(unsafe_code)]
 
 pub mod build;
+pub mod compare;
 pub mod hwsim;
 pub mod layout;
 pub mod paper;

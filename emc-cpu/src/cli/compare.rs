@@ -1,0 +1,720 @@
+//! `emc compare`: emc's presets beside the peers (Embree 3 LOW and MEDIUM, obvhs; feature
+//! `peers`) in one process, on the benchmark protocol's rays: build ms (cold and warm), primary
+//! and AO Mrays/s, the protocol counts, BVH memory, and each emc figure's ratio to the best peer
+//! measured in the same run. A ratio to a figure from another run or machine is never printed.
+//!
+//! Builds, as the peer harness times Embree: one warm-up build, then **cold** = median of
+//! [`BUILDS`] builds of fresh objects (the previous one dropped first), **warm** = median of
+//! [`BUILDS`] rebuilds of the kept one (`Accel::rebuild`; Embree: `rtcUpdateGeometryBuffer` +
+//! commits on the same scene; obvhs: its PLOC builder and tree reused). Wall time; the thread
+//! pools exist before the clock starts (one rayon pool for emc and obvhs, one Embree device).
+//! Traces: one warm-up pass per configuration (its counts and its own AO rays, made with the
+//! harness's arithmetic: [`crate::peers::harness_ao_rays`], so emc's AO counts here can differ
+//! by a ray from `emc render`'s), then `--runs` passes that alternate the configurations run by
+//! run; medians; single-ray calls through [`crate::peers`]' loop (FTZ/DAZ on every tracing
+//! thread, emc's included; builds run in the default floating-point mode on every side). Beside
+//! each wall figure, its CPU time (process CPU of a build, thread CPU of the tracing threads),
+//! for runs on a shared machine.
+
+use std::io::Write;
+use std::time::{Duration, Instant};
+
+use anyhow::{bail, Context};
+use glam::Vec3;
+
+use crate::cputime::process_cpu_time;
+use crate::peers::{Protocol, Timing, Tracer};
+use crate::scene::{load_with, SceneOptions};
+use crate::trace::workload::{AoCounts, CameraMode};
+use crate::trace::{Accel, BuildOptions, Preset};
+
+/// Builds per cold and per warm median (the harness's `--reps 5`).
+pub const BUILDS: usize = 5;
+
+/// Arguments of `emc compare`.
+#[derive(clap::Args, Debug, Clone)]
+pub struct CompareArgs {
+    /// Scenes: `.obj` / `.obj.zst` files, shared scene names, or `builtin:NAME`.
+    #[arg(required = true)]
+    pub scenes: Vec<String>,
+    /// Threads for building and tracing, on every side (at least 1).
+    #[arg(long, default_value_t = 1)]
+    pub threads: usize,
+    /// Also write one CSV row per scene and configuration to this file.
+    #[arg(long)]
+    pub csv: Option<String>,
+    /// Timed trace passes per configuration (after one warm-up), alternating configurations.
+    #[arg(long, default_value_t = 5)]
+    pub runs: usize,
+    /// emc presets to measure, comma-separated: fast, balanced, quality.
+    #[arg(long, default_value = "fast,balanced,quality")]
+    pub presets: String,
+    /// Image width and height of the primary rays (the protocol uses 1024).
+    #[arg(long, default_value_t = 1024)]
+    pub res: u32,
+    /// Camera: outside or center (default: center for pbrt-bathroom, else outside).
+    #[arg(long)]
+    pub camera: Option<String>,
+    /// Approximate triangle count of built-in scenes.
+    #[arg(long)]
+    pub prims: Option<usize>,
+}
+
+/// A configuration measured: an emc preset or a peer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Config {
+    /// `Accel` with this preset.
+    Emc(Preset),
+    /// Embree 3 at this build quality.
+    #[cfg(feature = "peers")]
+    Embree(crate::peers::embree::Quality),
+    /// obvhs' fastest build (PLOC → BVH2).
+    #[cfg(feature = "peers")]
+    Obvhs,
+}
+
+impl Config {
+    /// The row label.
+    pub fn name(self) -> &'static str {
+        match self {
+            Config::Emc(Preset::Fast) => "emc fast",
+            Config::Emc(Preset::Balanced) => "emc balanced",
+            Config::Emc(Preset::Quality) => "emc quality",
+            #[cfg(feature = "peers")]
+            Config::Embree(crate::peers::embree::Quality::Low) => "embree LOW",
+            #[cfg(feature = "peers")]
+            Config::Embree(crate::peers::embree::Quality::Medium) => "embree MEDIUM",
+            #[cfg(feature = "peers")]
+            Config::Obvhs => "obvhs fastest",
+        }
+    }
+
+    /// True for the peers (the denominators of the ratios).
+    pub fn is_peer(self) -> bool {
+        !matches!(self, Config::Emc(_))
+    }
+}
+
+/// Parse `--presets`: a non-empty comma-separated list of fast, balanced, quality.
+pub fn parse_presets(s: &str) -> anyhow::Result<Vec<Preset>> {
+    let mut out = Vec::new();
+    for p in s.split(',').map(str::trim).filter(|p| !p.is_empty()) {
+        let preset = match p {
+            "fast" => Preset::Fast,
+            "balanced" => Preset::Balanced,
+            "quality" => Preset::Quality,
+            _ => bail!("--presets: unknown preset `{p}` (fast, balanced, quality)"),
+        };
+        if !out.contains(&preset) {
+            out.push(preset);
+        }
+    }
+    if out.is_empty() {
+        bail!("--presets names no preset (fast, balanced, quality)");
+    }
+    Ok(out)
+}
+
+/// Median of durations in milliseconds (mean of the middle two for an even count).
+fn median_ms(v: &[Duration]) -> f64 {
+    let mut ms: Vec<f64> = v.iter().map(|d| d.as_secs_f64() * 1e3).collect();
+    ms.sort_by(f64::total_cmp);
+    let n = ms.len();
+    if n == 0 {
+        f64::NAN
+    } else if n % 2 == 1 {
+        ms[n / 2]
+    } else {
+        0.5 * (ms[n / 2 - 1] + ms[n / 2])
+    }
+}
+
+/// The 1-minute load average, if the system tells it.
+fn loadavg() -> Option<f64> {
+    std::fs::read_to_string("/proc/loadavg")
+        .ok()?
+        .split_whitespace()
+        .next()?
+        .parse()
+        .ok()
+}
+
+fn fmt_load(l: Option<f64>) -> String {
+    l.map_or_else(|| "?".into(), |l| format!("{l:.2}"))
+}
+
+/// A built structure of one configuration (an Embree scene borrows the device and the mesh;
+/// the marker keeps the lifetime when the peers are compiled out).
+enum Built<'a> {
+    Emc(Box<Accel>, std::marker::PhantomData<&'a ()>),
+    #[cfg(feature = "peers")]
+    Embree(crate::peers::embree::Scene<'a>),
+    #[cfg(feature = "peers")]
+    Obvhs(Box<crate::peers::obvhs::Bvh>),
+}
+
+impl Built<'_> {
+    fn tracer(&self) -> &dyn Tracer {
+        match self {
+            Built::Emc(a, _) => &**a,
+            #[cfg(feature = "peers")]
+            Built::Embree(s) => s,
+            #[cfg(feature = "peers")]
+            Built::Obvhs(b) => &**b,
+        }
+    }
+
+    fn memory_bytes(&self) -> u64 {
+        match self {
+            Built::Emc(a, _) => a.wide_bvh().memory_bytes() as u64,
+            #[cfg(feature = "peers")]
+            Built::Embree(s) => s.memory_bytes().max(0) as u64,
+            #[cfg(feature = "peers")]
+            Built::Obvhs(b) => b.memory_bytes() as u64,
+        }
+    }
+}
+
+/// Everything measured of one configuration on one scene.
+#[derive(Clone, Debug)]
+pub struct Row {
+    /// The configuration.
+    pub config: Config,
+    /// Median cold build, wall ms.
+    pub cold_ms: f64,
+    /// Median warm build, wall ms.
+    pub warm_ms: f64,
+    /// Median cold build, process CPU ms.
+    pub cold_cpu_ms: f64,
+    /// Median warm build, process CPU ms.
+    pub warm_cpu_ms: f64,
+    /// Median primary Mrays/s (wall).
+    pub primary_mrays: f64,
+    /// Median AO Mrays/s (wall).
+    pub ao_mrays: f64,
+    /// Median primary M rays per CPU-second of the tracing threads.
+    pub primary_mrays_cpu: f64,
+    /// Median AO M rays per CPU-second of the tracing threads.
+    pub ao_mrays_cpu: f64,
+    /// The protocol counts of this configuration's own rays.
+    pub counts: AoCounts,
+    /// Bytes of the traced structure.
+    pub memory_bytes: u64,
+}
+
+/// The best peer figure of each column: lowest build ms, highest Mrays/s.
+#[derive(Clone, Copy, Debug)]
+pub struct Best {
+    /// Lowest cold build ms of a peer.
+    pub cold_ms: f64,
+    /// Lowest warm build ms of a peer.
+    pub warm_ms: f64,
+    /// Highest primary Mrays/s of a peer.
+    pub primary_mrays: f64,
+    /// Highest AO Mrays/s of a peer.
+    pub ao_mrays: f64,
+}
+
+/// The best peer figures among `rows`, `None` when no peer was measured.
+pub fn best_peer(rows: &[Row]) -> Option<Best> {
+    let peers: Vec<&Row> = rows.iter().filter(|r| r.config.is_peer()).collect();
+    if peers.is_empty() {
+        return None;
+    }
+    let min = |f: fn(&Row) -> f64| peers.iter().map(|r| f(r)).fold(f64::INFINITY, f64::min);
+    let max = |f: fn(&Row) -> f64| peers.iter().map(|r| f(r)).fold(0.0, f64::max);
+    Some(Best {
+        cold_ms: min(|r| r.cold_ms),
+        warm_ms: min(|r| r.warm_ms),
+        primary_mrays: max(|r| r.primary_mrays),
+        ao_mrays: max(|r| r.ao_mrays),
+    })
+}
+
+/// An emc row's four ratios to the best peer: cold, warm (emc ms / peer ms: below 1 is
+/// faster), primary, AO (emc Mrays/s / peer Mrays/s: above 1 is faster).
+pub fn ratios(r: &Row, b: &Best) -> [f64; 4] {
+    [
+        r.cold_ms / b.cold_ms,
+        r.warm_ms / b.warm_ms,
+        r.primary_mrays / b.primary_mrays,
+        r.ao_mrays / b.ao_mrays,
+    ]
+}
+
+/// Median wall and CPU ms of one kind of build.
+#[derive(Clone, Copy, Debug, Default)]
+struct BuildMs {
+    wall: f64,
+    cpu: f64,
+}
+
+fn medians(t: &[Timing]) -> BuildMs {
+    let wall: Vec<Duration> = t.iter().map(|t| t.wall).collect();
+    let cpu: Vec<Duration> = t.iter().map(|t| t.cpu).collect();
+    BuildMs {
+        wall: median_ms(&wall),
+        cpu: median_ms(&cpu),
+    }
+}
+
+/// Process CPU time (every thread: rayon workers, Embree's) spent in `f`, with its result.
+fn with_cpu<R>(f: impl FnOnce() -> R) -> (R, Duration) {
+    let c0 = process_cpu_time().unwrap_or_default();
+    let r = f();
+    let c = process_cpu_time().unwrap_or_default().saturating_sub(c0);
+    (r, c)
+}
+
+/// Cold and warm build times (wall as each build reports it, process CPU around it) of one
+/// configuration; returns the kept structure.
+fn time_builds<B>(
+    mut cold: impl FnMut() -> anyhow::Result<(B, Duration)>,
+    mut warm: impl FnMut(&mut B) -> anyhow::Result<Duration>,
+) -> anyhow::Result<(B, BuildMs, BuildMs)> {
+    drop(cold()?.0); // warm-up
+    let mut colds = Vec::with_capacity(BUILDS);
+    let mut kept: Option<B> = None;
+    for _ in 0..BUILDS {
+        drop(kept.take());
+        let (r, cpu) = with_cpu(&mut cold);
+        let (b, wall) = r?;
+        colds.push(Timing { wall, cpu });
+        kept = Some(b);
+    }
+    let Some(mut b) = kept else {
+        bail!("no build was kept")
+    };
+    let mut warms = Vec::with_capacity(BUILDS);
+    for _ in 0..BUILDS {
+        let (r, cpu) = with_cpu(|| warm(&mut b));
+        warms.push(Timing { wall: r?, cpu });
+    }
+    Ok((b, medians(&colds), medians(&warms)))
+}
+
+/// What the process holds across scenes: the emc/obvhs pool and the Embree device.
+struct Session {
+    threads: usize,
+    pool: rayon::ThreadPool,
+    #[cfg(feature = "peers")]
+    device: crate::peers::embree::Device,
+}
+
+/// The configurations of a run: the presets asked for, then the peers compiled in.
+fn configs(presets: &[Preset]) -> Vec<Config> {
+    #[allow(unused_mut)]
+    let mut c: Vec<Config> = presets.iter().map(|&p| Config::Emc(p)).collect();
+    #[cfg(feature = "peers")]
+    {
+        use crate::peers::embree::Quality;
+        c.extend([
+            Config::Embree(Quality::Low),
+            Config::Embree(Quality::Medium),
+            Config::Obvhs,
+        ]);
+    }
+    c
+}
+
+/// One line per configuration saying what it builds and traces.
+#[cfg_attr(not(feature = "peers"), allow(unused_variables))]
+fn describe(configs: &[Config], ctx: &Session) -> Vec<String> {
+    configs
+        .iter()
+        .map(|&c| {
+            let what = match c {
+                Config::Emc(p) => {
+                    let (b, l, r) = BuildOptions::preset(p).resolve();
+                    format!(
+                        "Accel::build, builder {b}, layout {l}{}, traced {}-wide",
+                        if r { " + atrbvh" } else { "" },
+                        crate::trace::api::default_width()
+                    )
+                }
+                #[cfg(feature = "peers")]
+                Config::Embree(q) => format!(
+                    "Embree {} {} (shared buffers, RTC_SCENE_FLAG_NONE), BVH8, 4-triangle leaves",
+                    ctx.device.version(),
+                    match q {
+                        crate::peers::embree::Quality::Low => "RTC_BUILD_QUALITY_LOW: Morton",
+                        crate::peers::embree::Quality::Medium =>
+                            "RTC_BUILD_QUALITY_MEDIUM: binned SAH",
+                    }
+                ),
+                #[cfg(feature = "peers")]
+                Config::Obvhs => crate::peers::obvhs::DESCRIPTION.to_string(),
+            };
+            format!("  {:<14} {what}", c.name())
+        })
+        .collect()
+}
+
+/// Build one configuration (warm-up, cold, warm).
+fn build<'a>(
+    c: Config,
+    ctx: &'a Session,
+    vertices: &[Vec3],
+    indices: &[[u32; 3]],
+    #[cfg(feature = "peers")] mesh: &'a crate::peers::embree::Mesh,
+) -> anyhow::Result<(Built<'a>, BuildMs, BuildMs)> {
+    let pool = &ctx.pool;
+    match c {
+        Config::Emc(p) => {
+            let opts = BuildOptions {
+                threads: None,
+                ..BuildOptions::preset(p)
+            };
+            let (a, cold, warm) = time_builds(
+                || {
+                    let t0 = Instant::now();
+                    let a = pool.install(|| Accel::build(vertices, indices, &opts))?;
+                    Ok((a, t0.elapsed()))
+                },
+                |a: &mut Accel| {
+                    let t0 = Instant::now();
+                    pool.install(|| a.rebuild(vertices))?;
+                    Ok(t0.elapsed())
+                },
+            )?;
+            Ok((
+                Built::Emc(Box::new(a), std::marker::PhantomData),
+                cold,
+                warm,
+            ))
+        }
+        #[cfg(feature = "peers")]
+        Config::Embree(q) => {
+            use crate::peers::embree::Scene;
+            let (s, cold, warm) = time_builds(
+                || Ok(Scene::build(&ctx.device, mesh, q)?),
+                |s: &mut Scene| Ok(s.rebuild()?),
+            )?;
+            Ok((Built::Embree(s), cold, warm))
+        }
+        #[cfg(feature = "peers")]
+        Config::Obvhs => {
+            use crate::peers::obvhs::Bvh;
+            let (b, cold, warm) = time_builds(
+                || Ok(pool.install(|| Bvh::build(vertices, indices))?),
+                |b: &mut Bvh| Ok(pool.install(|| b.rebuild(vertices))?),
+            )?;
+            Ok((Built::Obvhs(Box::new(b)), cold, warm))
+        }
+    }
+}
+
+/// One scene's measurements.
+struct SceneResult {
+    name: String,
+    ntris: usize,
+    mode: CameraMode,
+    rows: Vec<Row>,
+    /// Load average before the builds and after the traces.
+    load: [Option<f64>; 2],
+}
+
+/// Measure every configuration on one scene; prints progress on stderr, returns the rows and
+/// the load averages before and after.
+fn measure_scene(
+    spec: &str,
+    args: &CompareArgs,
+    ctx: &Session,
+    configs: &[Config],
+) -> anyhow::Result<SceneResult> {
+    let scene = load_with(
+        spec,
+        &SceneOptions {
+            prims: args.prims,
+            ..SceneOptions::default()
+        },
+    )
+    .with_context(|| format!("loading {spec}"))?;
+    let mode = match args.camera.as_deref() {
+        Some(c) => c.parse::<CameraMode>().map_err(anyhow::Error::msg)?,
+        None => CameraMode::for_scene(&scene.name),
+    };
+    let tris: Vec<[Vec3; 3]> = (0..scene.triangle_count())
+        .map(|i| scene.triangle(i))
+        .collect();
+    let ntris = tris.len();
+    let protocol = ctx.pool.install(|| Protocol::new(tris, mode, args.res));
+    let load0 = loadavg();
+    eprintln!(
+        "# {}: {ntris} triangles, camera {mode:?}, load average {}",
+        scene.name,
+        fmt_load(load0)
+    );
+    #[cfg(feature = "peers")]
+    let mesh = crate::peers::embree::Mesh::new(&scene.vertices, &scene.indices)?;
+    let mut built: Vec<(Config, Built, BuildMs, BuildMs)> = Vec::with_capacity(configs.len());
+    for &c in configs {
+        let (b, cold, warm) = build(
+            c,
+            ctx,
+            &scene.vertices,
+            &scene.indices,
+            #[cfg(feature = "peers")]
+            &mesh,
+        )
+        .with_context(|| format!("{}: building {}", scene.name, c.name()))?;
+        eprintln!(
+            "#   {:<14} cold {:.2} ms, warm {:.2} ms",
+            c.name(),
+            cold.wall,
+            warm.wall
+        );
+        built.push((c, b, cold, warm));
+    }
+    // Warm-up pass: each configuration's counts and its own AO rays.
+    let threads = ctx.threads;
+    let first: Vec<_> = built
+        .iter()
+        .map(|(_, b, _, _)| protocol.run(b.tracer(), threads))
+        .collect();
+    let mut prim_t = vec![Vec::with_capacity(args.runs); built.len()];
+    let mut ao_t = vec![Vec::with_capacity(args.runs); built.len()];
+    for _ in 0..args.runs {
+        for (k, (c, b, _, _)) in built.iter().enumerate() {
+            let t = b.tracer();
+            let (hits, tp) = t.closest(&protocol.primary, threads);
+            let n_hits = hits.iter().filter(|h| h.is_some()).count() as u64;
+            drop(hits);
+            let (occ, ta) = t.occluded(&first[k].ao, threads);
+            if n_hits != first[k].counts.primary_hits || occ != first[k].counts.ao_occluded {
+                bail!(
+                    "{}: {} counted {n_hits} hits / {occ} occluded, {} / {} before",
+                    scene.name,
+                    c.name(),
+                    first[k].counts.primary_hits,
+                    first[k].counts.ao_occluded
+                );
+            }
+            prim_t[k].push(tp);
+            ao_t[k].push(ta);
+        }
+    }
+    let load1 = loadavg();
+    let mrays = |n: usize, ms: f64| n as f64 / (ms * 1e-3) * 1e-6;
+    let rows = built
+        .iter()
+        .enumerate()
+        .map(|(k, (c, b, cold, warm))| {
+            let (p, a) = (medians(&prim_t[k]), medians(&ao_t[k]));
+            let (np, na) = (protocol.primary.len(), first[k].ao.len());
+            Row {
+                config: *c,
+                cold_ms: cold.wall,
+                warm_ms: warm.wall,
+                cold_cpu_ms: cold.cpu,
+                warm_cpu_ms: warm.cpu,
+                primary_mrays: mrays(np, p.wall),
+                ao_mrays: mrays(na, a.wall),
+                primary_mrays_cpu: mrays(np, p.cpu),
+                ao_mrays_cpu: mrays(na, a.cpu),
+                counts: first[k].counts,
+                memory_bytes: b.memory_bytes(),
+            }
+        })
+        .collect();
+    Ok(SceneResult {
+        name: scene.name.clone(),
+        ntris,
+        mode,
+        rows,
+        load: [load0, load1],
+    })
+}
+
+fn ratio_cell(x: Option<f64>) -> String {
+    x.map_or_else(|| "—".into(), |x| format!("{x:.2}×"))
+}
+
+/// Print one scene's table.
+fn print_table(name: &str, ntris: usize, mode: CameraMode, rows: &[Row], args: &CompareArgs) {
+    let best = best_peer(rows);
+    println!();
+    println!(
+        "{name}: {ntris} triangles, camera {mode:?}, {}×{} primary rays, {} thread{}, medians of {BUILDS} builds and {} trace runs",
+        args.res,
+        args.res,
+        args.threads,
+        if args.threads == 1 { "" } else { "s" },
+        args.runs
+    );
+    println!(
+        "{:<14} {:>9} {:>7} {:>9} {:>7} {:>9} {:>7} {:>9} {:>7} {:>9} {:>9} {:>9} {:>8}",
+        "config",
+        "cold ms",
+        "/best",
+        "warm ms",
+        "/best",
+        "prim Mr/s",
+        "/best",
+        "AO Mr/s",
+        "/best",
+        "prim hits",
+        "AO rays",
+        "AO occl",
+        "mem MiB"
+    );
+    for r in rows {
+        let q = match (&best, r.config.is_peer()) {
+            (Some(b), false) => ratios(r, b).map(Some),
+            _ => [None; 4],
+        };
+        println!(
+            "{:<14} {:>9.2} {:>7} {:>9.2} {:>7} {:>9.2} {:>7} {:>9.2} {:>7} {:>9} {:>9} {:>9} {:>8.1}",
+            r.config.name(),
+            r.cold_ms,
+            ratio_cell(q[0]),
+            r.warm_ms,
+            ratio_cell(q[1]),
+            r.primary_mrays,
+            ratio_cell(q[2]),
+            r.ao_mrays,
+            ratio_cell(q[3]),
+            r.counts.primary_hits,
+            r.counts.ao_rays,
+            r.counts.ao_occluded,
+            r.memory_bytes as f64 / (1u64 << 20) as f64
+        );
+    }
+    println!("the same per CPU time (which other tenants of a shared machine cannot take):");
+    println!(
+        "{:<14} {:>11} {:>11} {:>13} {:>13}",
+        "config", "cold cpu ms", "warm cpu ms", "prim Mr/cpu-s", "AO Mr/cpu-s"
+    );
+    for r in rows {
+        println!(
+            "{:<14} {:>11.2} {:>11.2} {:>13.2} {:>13.2}",
+            r.config.name(),
+            r.cold_cpu_ms,
+            r.warm_cpu_ms,
+            r.primary_mrays_cpu,
+            r.ao_mrays_cpu
+        );
+    }
+    match best {
+        Some(_) => println!(
+            "/best: emc's figure over the best peer's of this run (build: lowest ms, below 1 is faster; Mrays/s: highest, above 1 is faster)"
+        ),
+        None => println!(
+            "no peer measured: the peers (Embree 3 LOW/MEDIUM, obvhs) need `--features peers` \
+             (cargo run --release -p emc-cpu --features peers -- compare ...)"
+        ),
+    }
+}
+
+/// CSV header of `--csv`.
+pub const CSV_HEADER: &str = "scene,tris,camera,config,peer,threads,res,runs,build_cold_ms,build_warm_ms,build_cold_cpu_ms,build_warm_cpu_ms,primary_mrays,ao_mrays,primary_mrays_cpu,ao_mrays_cpu,primary_hits,ao_rays,ao_occluded,mem_bytes,cold_vs_best_peer,warm_vs_best_peer,primary_vs_best_peer,ao_vs_best_peer,loadavg_start,loadavg_end";
+
+/// Run `emc compare`.
+pub fn run(args: &CompareArgs) -> anyhow::Result<()> {
+    if args.threads == 0 || args.threads > 1024 {
+        bail!("--threads must be in 1..=1024");
+    }
+    if args.runs == 0 || args.runs > 1000 {
+        bail!("--runs must be in 1..=1000");
+    }
+    if args.res == 0 || args.res > 16384 {
+        bail!("--res must be in 1..=16384");
+    }
+    let presets = parse_presets(&args.presets)?;
+    if let Some(c) = args.camera.as_deref() {
+        c.parse::<CameraMode>().map_err(anyhow::Error::msg)?;
+    }
+    let mut csv = match &args.csv {
+        Some(p) => {
+            let mut f = std::io::BufWriter::new(
+                std::fs::File::create(p).with_context(|| format!("creating {p}"))?,
+            );
+            writeln!(f, "{CSV_HEADER}").with_context(|| format!("writing {p}"))?;
+            Some((p, f))
+        }
+        None => None,
+    };
+    let ctx = Session {
+        threads: args.threads,
+        pool: rayon::ThreadPoolBuilder::new()
+            .num_threads(args.threads)
+            .build()
+            .context("creating the thread pool")?,
+        #[cfg(feature = "peers")]
+        device: crate::peers::embree::Device::new(args.threads)?,
+    };
+    let configs = configs(&presets);
+    println!(
+        "emc compare: {} thread{}, load average {}; configurations:",
+        args.threads,
+        if args.threads == 1 { "" } else { "s" },
+        fmt_load(loadavg())
+    );
+    for l in describe(&configs, &ctx) {
+        println!("{l}");
+    }
+    if !configs.iter().any(|c| c.is_peer()) {
+        println!(
+            "peers: not built in; Embree 3 and obvhs need `--features peers` \
+             (cargo run --release -p emc-cpu --features peers -- compare ...)"
+        );
+    }
+    for spec in &args.scenes {
+        let SceneResult {
+            name,
+            ntris,
+            mode,
+            rows,
+            load: [l0, l1],
+        } = measure_scene(spec, args, &ctx, &configs)?;
+        print_table(&name, ntris, mode, &rows, args);
+        println!(
+            "load average {} before, {} after the traces",
+            fmt_load(l0),
+            fmt_load(l1)
+        );
+        if let Some((p, f)) = &mut csv {
+            let best = best_peer(&rows);
+            for r in &rows {
+                let q = match (&best, r.config.is_peer()) {
+                    (Some(b), false) => ratios(r, b).map(|x| format!("{x:.4}")),
+                    _ => Default::default(),
+                };
+                writeln!(
+                    f,
+                    "{name},{ntris},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{},{},{},{},{},{},{},{},{},{}",
+                    match mode {
+                        CameraMode::Outside => "outside",
+                        CameraMode::Center => "center",
+                    },
+                    r.config.name(),
+                    r.config.is_peer() as u8,
+                    args.threads,
+                    args.res,
+                    args.runs,
+                    r.cold_ms,
+                    r.warm_ms,
+                    r.cold_cpu_ms,
+                    r.warm_cpu_ms,
+                    r.primary_mrays,
+                    r.ao_mrays,
+                    r.primary_mrays_cpu,
+                    r.ao_mrays_cpu,
+                    r.counts.primary_hits,
+                    r.counts.ao_rays,
+                    r.counts.ao_occluded,
+                    r.memory_bytes,
+                    q[0],
+                    q[1],
+                    q[2],
+                    q[3],
+                    l0.map_or(String::new(), |l| format!("{l:.2}")),
+                    l1.map_or(String::new(), |l| format!("{l:.2}")),
+                )
+                .with_context(|| format!("writing {p}"))?;
+            }
+            f.flush().with_context(|| format!("writing {p}"))?;
+        }
+    }
+    Ok(())
+}
