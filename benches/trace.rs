@@ -38,12 +38,12 @@ fn workload(spec: &str, prims: Option<usize>) -> Option<Workload> {
     )
     .ok()?;
     let tris: Vec<_> = (0..s.triangle_count()).map(|i| s.triangle(i)).collect();
-    let accel = Accel::from_triangles(tris, &BuildOptions::preset(Preset::Quality)).ok()?;
-    let frame = SceneFrame::of(accel.triangles());
+    let accel = Accel::build(&s.vertices, &s.indices, &BuildOptions::preset(Preset::Quality)).ok()?;
+    let frame = SceneFrame::of(&tris);
     let cam = Camera::protocol(&frame, CameraMode::for_scene(&s.name));
     let primary = primary_rays(&cam, res(), res());
     let (hits, _) = trace_closest(accel.wide_bvh(), &primary, NodeTest::Simd, false);
-    let (ao, _) = all_ao_rays(&primary, &hits, accel.triangles(), frame.diag);
+    let (ao, _) = all_ao_rays(&primary, &hits, &tris, frame.diag);
     Some(Workload {
         name: s.name.clone(),
         accel,
