@@ -38,7 +38,12 @@ fn workload(spec: &str, prims: Option<usize>) -> Option<Workload> {
     )
     .ok()?;
     let tris: Vec<_> = (0..s.triangle_count()).map(|i| s.triangle(i)).collect();
-    let accel = Accel::build(&s.vertices, &s.indices, &BuildOptions::preset(Preset::Quality)).ok()?;
+    let accel = Accel::build(
+        &s.vertices,
+        &s.indices,
+        &BuildOptions::preset(Preset::Quality),
+    )
+    .ok()?;
     let frame = SceneFrame::of(&tris);
     let cam = Camera::protocol(&frame, CameraMode::for_scene(&s.name));
     let primary = primary_rays(&cam, res(), res());

@@ -25,6 +25,7 @@ use glam::Vec3;
 use crate::cputime::process_cpu_time;
 use crate::peers::{Protocol, Timing, Tracer};
 use crate::scene::{load_with, SceneOptions};
+use crate::trace::wide_lbvh::FastTimes;
 use crate::trace::workload::{AoCounts, CameraMode};
 use crate::trace::{Accel, BuildOptions, Preset};
 
@@ -200,6 +201,45 @@ pub struct Row {
     pub counts: AoCounts,
     /// Bytes of the traced structure.
     pub memory_bytes: u64,
+    /// emc's fast path: per-phase wall ms (medians of the cold and of the warm builds) and
+    /// what the structure came to, for the per-phase budget.
+    pub phases: Option<FastPhases>,
+}
+
+/// Per-phase medians of the fast path's builds, and the sizes the memory traffic follows from.
+#[derive(Clone, Copy, Debug)]
+pub struct FastPhases {
+    /// Median of the cold builds' phases.
+    pub cold: FastTimes,
+    /// Median of the warm builds' phases.
+    pub warm: FastTimes,
+    /// Triangle packets, wide nodes, node bytes, vertices, code bytes and sort passes.
+    pub packets: usize,
+    /// Wide nodes.
+    pub nodes: usize,
+    /// Bytes per wide node.
+    pub node_bytes: usize,
+    /// Vertices of the mesh.
+    pub vertices: usize,
+}
+
+/// Per-field medians of phase timings.
+fn median_phases(v: &[FastTimes]) -> FastTimes {
+    let m = |f: fn(&FastTimes) -> f64| {
+        let mut x: Vec<f64> = v.iter().map(f).collect();
+        x.sort_by(f64::total_cmp);
+        if x.is_empty() {
+            0.0
+        } else {
+            x[x.len() / 2]
+        }
+    };
+    FastTimes {
+        aabb: m(|t| t.aabb),
+        encode: m(|t| t.encode),
+        sort: m(|t| t.sort),
+        tree: m(|t| t.tree),
+    }
 }
 
 /// The best peer figure of each column: lowest build ms, highest Mrays/s.
@@ -357,7 +397,7 @@ fn build<'a>(
     vertices: &[Vec3],
     indices: &[[u32; 3]],
     #[cfg(feature = "peers")] mesh: &'a crate::peers::embree::Mesh,
-) -> anyhow::Result<(Built<'a>, BuildMs, BuildMs)> {
+) -> anyhow::Result<(Built<'a>, BuildMs, BuildMs, Option<FastPhases>)> {
     let pool = &ctx.pool;
     match c {
         Config::Emc(p) => {
@@ -365,22 +405,39 @@ fn build<'a>(
                 threads: None,
                 ..BuildOptions::preset(p)
             };
+            let (mut pc, mut pw) = (Vec::new(), Vec::new());
             let (a, cold, warm) = time_builds(
                 || {
                     let t0 = Instant::now();
                     let a = pool.install(|| Accel::build(vertices, indices, &opts))?;
-                    Ok((a, t0.elapsed()))
+                    let t = t0.elapsed();
+                    pc.push(a.build_phases());
+                    Ok((a, t))
                 },
                 |a: &mut Accel| {
                     let t0 = Instant::now();
                     pool.install(|| a.rebuild(vertices))?;
-                    Ok(t0.elapsed())
+                    let t = t0.elapsed();
+                    pw.push(a.build_phases());
+                    Ok(t)
                 },
             )?;
+            let phases = (a.build_phases().tree > 0.0).then(|| {
+                let w = a.wide_bvh();
+                FastPhases {
+                    cold: median_phases(&pc[1..]),
+                    warm: median_phases(&pw),
+                    packets: w.packets.len(),
+                    nodes: w.nodes.len() + w.nodes8.len(),
+                    node_bytes: if w.nodes8.is_empty() { 128 } else { 256 },
+                    vertices: vertices.len(),
+                }
+            });
             Ok((
                 Built::Emc(Box::new(a), std::marker::PhantomData),
                 cold,
                 warm,
+                phases,
             ))
         }
         #[cfg(feature = "peers")]
@@ -390,7 +447,7 @@ fn build<'a>(
                 || Ok(Scene::build(&ctx.device, mesh, q)?),
                 |s: &mut Scene| Ok(s.rebuild()?),
             )?;
-            Ok((Built::Embree(s), cold, warm))
+            Ok((Built::Embree(s), cold, warm, None))
         }
         #[cfg(feature = "peers")]
         Config::Obvhs => {
@@ -399,7 +456,7 @@ fn build<'a>(
                 || Ok(pool.install(|| Bvh::build(vertices, indices))?),
                 |b: &mut Bvh| Ok(pool.install(|| b.rebuild(vertices))?),
             )?;
-            Ok((Built::Obvhs(Box::new(b)), cold, warm))
+            Ok((Built::Obvhs(Box::new(b)), cold, warm, None))
         }
     }
 }
@@ -448,8 +505,9 @@ fn measure_scene(
     #[cfg(feature = "peers")]
     let mesh = crate::peers::embree::Mesh::new(&scene.vertices, &scene.indices)?;
     let mut built: Vec<(Config, Built, BuildMs, BuildMs)> = Vec::with_capacity(configs.len());
+    let mut phases = Vec::with_capacity(configs.len());
     for &c in configs {
-        let (b, cold, warm) = build(
+        let (b, cold, warm, ph) = build(
             c,
             ctx,
             &scene.vertices,
@@ -465,6 +523,7 @@ fn measure_scene(
             warm.wall
         );
         built.push((c, b, cold, warm));
+        phases.push(ph);
     }
     // Warm-up pass: each configuration's counts and its own AO rays.
     let threads = ctx.threads;
@@ -514,6 +573,7 @@ fn measure_scene(
                 ao_mrays_cpu: mrays(na, a.cpu),
                 counts: first[k].counts,
                 memory_bytes: b.memory_bytes(),
+                phases: phases[k],
             }
         })
         .collect();
@@ -595,6 +655,7 @@ fn print_table(name: &str, ntris: usize, mode: CameraMode, rows: &[Row], args: &
             r.ao_mrays_cpu
         );
     }
+    print_targets(rows, ntris);
     match best {
         Some(_) => println!(
             "/best: emc's figure over the best peer's of this run (build: lowest ms, below 1 is faster; Mrays/s: highest, above 1 is faster)"
@@ -603,6 +664,96 @@ fn print_table(name: &str, ntris: usize, mode: CameraMode, rows: &[Row], args: &
             "no peer measured: the peers (Embree 3 LOW/MEDIUM, obvhs) need `--features peers` \
              (cargo run --release -p emc-cpu --features peers -- compare ...)"
         ),
+    }
+}
+
+/// The issue's targets against the Embree row they name (same run): the fast preset against
+/// Embree LOW (cold ≤ 0.5×, warm ≤ 0.25×), quality and balanced against Embree MEDIUM (cold
+/// ≤ 1.0×); then the fast path's per-phase budget in ns per triangle beside the bytes per
+/// triangle each phase must at least move.
+fn print_targets(rows: &[Row], ntris: usize) {
+    let find = |name: &str| rows.iter().find(|r| r.config.name() == name);
+    let (low, medium) = (find("embree LOW"), find("embree MEDIUM"));
+    for r in rows.iter().filter(|r| !r.config.is_peer()) {
+        let (peer, cold_t, warm_t) = if r.config.name() == "emc fast" {
+            (low, 0.5, Some(0.25))
+        } else {
+            (medium, 1.0, None)
+        };
+        let Some(p) = peer else { continue };
+        let warm = warm_t.map_or(String::new(), |t| {
+            format!(", warm {:.2}× (target ≤ {t}×)", r.warm_ms / p.cold_ms)
+        });
+        println!(
+            "target {}: cold {:.2}× {} (target ≤ {cold_t}×){warm}",
+            r.config.name(),
+            r.cold_ms / p.cold_ms,
+            p.config.name(),
+        );
+    }
+    let Some((r, ph)) = rows.iter().find_map(|r| r.phases.map(|p| (r, p))) else {
+        return;
+    };
+    let n = ntris.max(1) as f64;
+    let ns = |ms: f64| ms * 1e6 / n;
+    let per = |x: usize| x as f64 / n;
+    // Bytes per triangle each phase reads and writes at least (first touch of fresh memory
+    // not counted): indices 12 and the gathered corners, boxes 24, codes 4 (emc32-var), the
+    // sort's (code, id) pairs read and written per pass, the packets and nodes written.
+    let corners = 12.0 * per(ph.vertices).min(3.0);
+    let traffic = [
+        (
+            "aabb (checks, boxes, bounds)",
+            12.0 + corners + 24.0 + 12.0 * per(ph.vertices),
+        ),
+        ("encode", 24.0 + 4.0),
+        ("sort (≈ 4 passes)", 4.0 * 2.0 * 8.0),
+        (
+            "tree (blocks, packets, top)",
+            4.0 + 4.0
+                + 12.0
+                + 36.0
+                + per(ph.packets) * 176.0
+                + per(ph.nodes) * ph.node_bytes as f64,
+        ),
+    ];
+    let cold = [ph.cold.aabb, ph.cold.encode, ph.cold.sort, ph.cold.tree];
+    let warm = [ph.warm.aabb, ph.warm.encode, ph.warm.sort, ph.warm.tree];
+    println!(
+        "{} per phase, ns per triangle (medians; the rest of the build, copies of the mesh and allocation, is the difference to the total):",
+        r.config.name()
+    );
+    println!(
+        "{:<30} {:>9} {:>9} {:>12}",
+        "phase", "cold", "warm", "bytes/tri"
+    );
+    for (i, (name, b)) in traffic.iter().enumerate() {
+        println!(
+            "{name:<30} {:>9.1} {:>9.1} {b:>12.0}",
+            ns(cold[i]),
+            ns(warm[i])
+        );
+    }
+    let sum = |v: &[f64; 4]| v.iter().sum::<f64>();
+    println!(
+        "{:<30} {:>9.1} {:>9.1}",
+        "phases",
+        ns(sum(&cold)),
+        ns(sum(&warm))
+    );
+    println!(
+        "{:<30} {:>9.1} {:>9.1}",
+        "whole build (Accel)",
+        ns(r.cold_ms),
+        ns(r.warm_ms)
+    );
+    if let Some(p) = low {
+        println!(
+            "{:<30} {:>9.1} {:>9.1}   (0.5× and 0.25× of embree LOW's cold build)",
+            "budget",
+            ns(0.5 * p.cold_ms),
+            ns(0.25 * p.cold_ms)
+        );
     }
 }
 

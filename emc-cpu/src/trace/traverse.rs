@@ -510,7 +510,7 @@ impl Lanes<WIDTH8> for AvxLanes {
 
 /// Hint the cache to fetch the `bytes` bytes at `x` (a no-op off x86-64).
 #[inline(always)]
-fn prefetch<T>(x: &T, bytes: usize) {
+pub(crate) fn prefetch<T>(x: &T, bytes: usize) {
     #[cfg(target_arch = "x86_64")]
     {
         let p = (x as *const T).cast::<i8>();

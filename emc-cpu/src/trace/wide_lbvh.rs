@@ -23,10 +23,14 @@ use glam::{Vec3, Vec3A};
 
 use crate::sort::RadixKey;
 use crate::trace::wide::{TriPacket, WideNodeN, EMPTY, LEAF, MAX_DEPTH, WIDTH};
+use crate::trace::traverse::prefetch;
 use crate::trace::TraceError;
 
 /// Ranges of at most this many primitives are built as one block, in the core's cache.
 pub const BLOCK: u32 = 1024;
+
+/// How far ahead of the block's gather its index and corner loads are prefetched.
+const GATHER_AHEAD: usize = 16;
 
 /// Largest leaf: two triangle packets.
 pub const LEAF_MAX: u32 = 2 * WIDTH as u32;
@@ -217,7 +221,20 @@ fn build_block<K: RadixKey, const W: usize>(
         s.tris.resize(BLOCK as usize, [Vec3A::ZERO; 3]);
     }
     let ids = &inp.ids[b as usize..e as usize];
-    for (t, &id) in s.tris[..m].iter_mut().zip(ids) {
+    // The gather is the one scattered read of the build: the triangle `GATHER_AHEAD` positions
+    // on has its index fetched, and the one half as far on its corners (their indices are in
+    // cache by then), so the misses overlap instead of stalling each load.
+    let all = inp.ids;
+    for (k, (t, &id)) in s.tris[..m].iter_mut().zip(ids).enumerate() {
+        let p = b as usize + k;
+        if let Some(&f) = all.get(p + GATHER_AHEAD) {
+            prefetch(&inp.indices[f as usize], 12);
+        }
+        if let Some(&f) = all.get(p + GATHER_AHEAD / 2) {
+            for &v in &inp.indices[f as usize] {
+                prefetch(&inp.vertices[v as usize], 12);
+            }
+        }
         *t = inp.indices[id as usize].map(|i| Vec3A::from(inp.vertices[i as usize]));
     }
     // The sweep: left to right, every primitive a leaf node; an open subtree on the stack is
