@@ -3,7 +3,10 @@ fn main() {
     let args: Vec<String> = std::env::args().collect();
     let scene = emc_cpu::scene::load_with(&args[1], &Default::default()).unwrap();
     let reps: usize = args.get(2).map(|s| s.parse().unwrap()).unwrap_or(20);
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(1).build().unwrap();
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .unwrap();
     pool.install(|| {
         let mut a = Accel::build(&scene.vertices, &scene.indices, &BuildOptions::preset(Preset::Fast)).unwrap();
         let mut best = [f64::INFINITY; 5];

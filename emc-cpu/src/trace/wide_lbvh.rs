@@ -22,8 +22,8 @@ use emc_core::Aabb;
 use glam::{Vec3, Vec3A};
 
 use crate::sort::RadixKey;
-use crate::trace::wide::{TriPacket, WideNodeN, EMPTY, LEAF, MAX_DEPTH, WIDTH};
 use crate::trace::traverse::prefetch;
+use crate::trace::wide::{TriPacket, WideNodeN, EMPTY, LEAF, MAX_DEPTH, WIDTH};
 use crate::trace::TraceError;
 
 /// Ranges of at most this many primitives are built as one block, in the core's cache.
@@ -361,18 +361,18 @@ fn emit_leaf<const W: usize>(
     for j in 0..k {
         let lo = j * WIDTH;
         let real = (c - lo).min(WIDTH);
-        let mut p = TriPacket::blank(real as u32, j + 1 == k);
+        // Written in place (no packet-sized copy through the stack).
+        out.packets.push(TriPacket::blank(real as u32, j + 1 == k));
+        let p = out.packets.last_mut().expect("just pushed");
         for lane in 0..WIDTH {
             let q = lo + lane.min(real - 1);
             for (v, corner) in tris[q].iter().enumerate() {
-                let corner = Vec3::from(*corner);
                 p.v[3 * v][lane] = corner.x;
                 p.v[3 * v + 1][lane] = corner.y;
                 p.v[3 * v + 2][lane] = corner.z;
             }
             p.id[lane] = ids[q];
         }
-        out.packets.push(p);
     }
     out.leaves += 1;
     (code, COST_PACKET * area * k as f32)
@@ -425,7 +425,6 @@ fn emit_wide<K: RadixKey, const W: usize>(
         kids[best + 1] = r;
         n += 1;
     }
-    let mut node = WideNodeN::<W>::empty();
     let mut cost = COST_NODE * root.area;
     let mut height = 1;
     for (lane, &k) in kids[..n].iter().enumerate() {
@@ -440,9 +439,9 @@ fn emit_wide<K: RadixKey, const W: usize>(
             height = height.max(h + 1);
             code
         };
-        node.set(lane, &kn.aabb(), code, inp.pad);
+        // In place: the node's slot was pushed (empty) before its children.
+        out.nodes[me].set(lane, &kn.aabb(), code, inp.pad);
     }
-    out.nodes[me] = node;
     (me as u32, cost, height)
 }
 
@@ -870,8 +869,13 @@ fn finish_tree<K: RadixKey, const W: usize>(
     t3: std::time::Instant,
 ) -> Result<FastTree, TraceError> {
     let n = inp.keys.len();
+    let fresh = packets.capacity() == 0;
     nodes.reserve(n / (2 * W) + 1);
     packets.reserve(n / 2 + 1);
+    if fresh {
+        crate::hugepage::advise(packets);
+        crate::hugepage::advise(nodes);
+    }
     let mut out = Outputs {
         nodes,
         packets,
