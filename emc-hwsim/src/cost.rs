@@ -359,7 +359,7 @@ pub fn cost(unit: &Unit) -> Cost {
         "[E]",
     );
     Cost {
-        label: format!("{} ({})", unit.layout().spec(), r.net.name()),
+        label: format!("{} ({})", unit.spec(), r.net.name()),
         items,
         latency_cycles: unit.depth(),
         stage_latency: unit.stages().iter().map(|s| (s.name, s.latency)).collect(),

@@ -36,8 +36,11 @@ pub enum HwError {
     #[error("memory latency must be a finite number of ns >= 0, got {0}")]
     Latency(f64),
     /// A fixed-wiring unit was asked to serve a layout it is not wired for.
-    #[error("fixed Morton wiring serves only morton30/morton63 layouts, not {0}")]
+    #[error("fixed wiring serves only regular fixed patterns (one group of distinct channels repeated), not {0}")]
     NotFixedLayout(String),
+    /// The firmware's bit schedule is not a valid layout.
+    #[error("layout: {0}")]
+    Layout(emc_core::Error),
     /// The frame (scene bounds) could not be built from the input boxes.
     #[error("scene bounds: {0}")]
     Frame(emc_core::Error),

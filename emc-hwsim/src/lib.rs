@@ -7,8 +7,8 @@
 //!
 //! The unit computes every code through its own stage operations (fp64 adders and multipliers,
 //! float→fixed shifters, threshold comparators or the sqrt/divide path, a Beneš network or
-//! fixed wiring); emc-core only supplies the layout schedule and the size thresholds at
-//! configuration time, as a host driver would, and serves as the test oracle.
+//! fixed wiring); its firmware model ([`firmware`]) derives the bit schedule, position scales
+//! and size thresholds itself. emc-core parses layout names and is the test oracle.
 //!
 //! ```
 //! use emc_core::{Aabb, Frame, LayoutSpec};
@@ -36,6 +36,7 @@ pub mod cost;
 pub mod datapath;
 mod error;
 pub mod fast;
+pub mod firmware;
 pub mod fixed;
 pub mod memory;
 pub mod routing;

@@ -46,6 +46,16 @@ pub fn layout_permutation(layout: &Layout) -> Permutation {
     src
 }
 
+/// Apply a permutation as wires: code bit `j < len` is packed bit `src[j]`.
+#[inline]
+pub fn permute(src: &Permutation, packed: u64, len: u32) -> u64 {
+    let mut code = 0u64;
+    for (j, &s) in src.iter().enumerate().take(len as usize) {
+        code |= ((packed >> s) & 1) << j;
+    }
+    code
+}
+
 /// A Beneš network on `2^k` bit lanes: `2k − 1` columns of `2^(k−1)` 2×2 switches, column `i`
 /// exchanging lanes `d` apart with `d = 2^(k−1−min(i, 2k−2−i))` (32, 16, …, 1, …, 16, 32 for
 /// 64 lanes). One control bit per switch, stored per column as a mask of the lower lane.

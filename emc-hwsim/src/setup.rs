@@ -47,7 +47,7 @@ pub fn setup_cost(
         bus.max(n.div_ceil(lanes)) + port.latency
     };
     let r = unit.registers();
-    let adaptive = unit.layout().spec().is_adaptive();
+    let adaptive = unit.spec().is_adaptive();
     let schedule_cycles = if adaptive { r.len as u64 } else { 0 };
     let axes = r.axis_on.iter().filter(|&&o| o).count() as u64;
     // origin2 and scale per active axis (64 bits each), one word of bit counts and offsets.
