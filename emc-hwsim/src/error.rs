@@ -38,6 +38,9 @@ pub enum HwError {
     /// A fixed-wiring unit was asked to serve a layout it is not wired for.
     #[error("fixed wiring serves only regular fixed patterns (one group of distinct channels repeated), not {0}")]
     NotFixedLayout(String),
+    /// The unit cannot be emitted as RTL (or its RTL run failed).
+    #[error("RTL: {0}")]
+    Rtl(String),
     /// The firmware's bit schedule is not a valid layout.
     #[error("layout: {0}")]
     Layout(emc_core::Error),

@@ -40,9 +40,11 @@ pub mod firmware;
 pub mod fixed;
 pub mod memory;
 pub mod routing;
+pub mod rtl;
 pub mod setup;
 pub mod stats;
 pub mod stepped;
+pub mod vectors;
 
 pub use datapath::{Network, RoutingChoice, SizeSearch, SizeUnit, Stage, Unit, UnitOptions};
 pub use error::HwError;
