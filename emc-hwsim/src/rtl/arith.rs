@@ -4,6 +4,9 @@
 //! swap any single wire, and each is emitted only when the configuration uses it.
 //!
 //! Their domain is the unit's: finite operands whose exact results are normal doubles or zero.
+//! The sign of a zero never reaches a code (float→fixed maps ±0 to 0, squares and sums of
+//! squares are non-negative), so zeros are produced as +0; the divider and the square root
+//! only ever see non-negative operands, so their results carry no sign logic either.
 //! Every value the datapath forms from finite `f32` boxes lies there (sums, differences,
 //! products and roots of `f32`-range values stay within 2^-300..2^270); subnormal operands are
 //! read as zero and nothing rounds to a subnormal, as the module docs of [`crate::fixed`]
@@ -48,8 +51,7 @@ module emc_fp64_add (
   wire [55:0] msa = {msh[55:1], msh[0] | stk};
   wire eff = sa ^ sb;
   wire bz = za & zb;
-  wire zs = sa & sb;
-  reg s1_sl, s1_eff, s1_bz, s1_zs;
+  reg s1_sl, s1_eff, s1_bz;
   reg [10:0] s1_el;
   reg [52:0] s1_ml;
   reg [55:0] s1_ms;
@@ -57,7 +59,6 @@ module emc_fp64_add (
     s1_sl <= sl;
     s1_eff <= eff;
     s1_bz <= bz;
-    s1_zs <= zs;
     s1_el <= el;
     s1_ml <= ml;
     s1_ms <= msa;
@@ -81,14 +82,13 @@ module emc_fp64_add (
     }
     let _ = write!(
         s,
-        "  reg s2_sl, s2_bz, s2_zs;
+        "  reg s2_sl, s2_bz;
   reg [10:0] s2_el;
   reg [56:0] s2_sum;
   reg [6:0] s2_lz;
   always @(posedge clk) begin
     s2_sl <= s1_sl;
     s2_bz <= s1_bz;
-    s2_zs <= s1_zs;
     s2_el <= s1_el;
     s2_sum <= sum;
     s2_lz <= {prev};
@@ -102,7 +102,7 @@ module emc_fp64_add (
   wire [12:0] ex2 = ex + {{12'd0, mr[53]}};
   wire [51:0] fr = mr[53] ? mr[52:1] : mr[51:0];
   wire zero = (s2_sum == 57'd0);
-  wire [63:0] res = s2_bz ? {{s2_zs, 63'd0}} : (zero ? 64'd0 : {{s2_sl, ex2[10:0], fr}});
+  wire [63:0] res = (s2_bz | zero) ? 64'd0 : {{s2_sl, ex2[10:0], fr}};
   reg [63:0] s3;
   always @(posedge clk) s3 <= res;
   assign y = s3;
@@ -161,7 +161,7 @@ module emc_fp64_mul (
   wire [53:0] mr = {1'b0, mt} + {53'd0, up};
   wire [12:0] ex = s2_es - 13'd1023 + {12'd0, hi} + {12'd0, mr[53]};
   wire [51:0] fr = mr[53] ? mr[52:1] : mr[51:0];
-  wire [63:0] res = s2_z ? {s2_s, 63'd0} : {s2_s, ex[10:0], fr};
+  wire [63:0] res = s2_z ? 64'd0 : {s2_s, ex[10:0], fr};
   reg [63:0] s3;
   always @(posedge clk) s3 <= res;
   assign y = s3;
@@ -190,24 +190,24 @@ fn boundary(s: &mut String, stage: usize, carried: &[(String, u32)]) -> Vec<(Str
 
 /// The final rounding of a 53-bit significand with guard and sticky, shared by the divider and
 /// the square root: writes `res` from `sp` (0 normal, 1 zero, 2 infinity, 3 NaN, 4 pass `x`).
-fn round_tail(s: &mut String, mt: &str, g: &str, st: &str, ex: &str, sg: &str, sp: &str) {
+fn round_tail(s: &mut String, mt: &str, g: &str, st: &str, ex: &str, sp: &str) {
     let _ = write!(
         s,
         "  wire up = {g} & ({st} | {mt}[0]);
   wire [53:0] mr = {{1'b0, {mt}}} + {{53'd0, up}};
   wire [12:0] exf = {ex} + {{12'd0, mr[53]}};
   wire [51:0] fr = mr[53] ? mr[52:1] : mr[51:0];
-  wire [63:0] res = ({sp} == 3'd1) ? {{{sg}, 63'd0}} :
-                    ({sp} == 3'd2) ? {{{sg}, 11'h7ff, 52'd0}} :
+  wire [63:0] res = ({sp} == 3'd1) ? 64'd0 :
+                    ({sp} == 3'd2) ? 64'h7ff0000000000000 :
                     ({sp} == 3'd3) ? 64'h7ff8000000000000 :
-                    {{{sg}, exf[10:0], fr}};
+                    {{1'b0, exf[10:0], fr}};
 "
     );
 }
 
 /// The fp64 divider `y = a / b` over `stages` pipeline registers: a restoring division of the
 /// significands producing 55 quotient bits (one a stage-local wire each) and a sticky
-/// remainder, then round to nearest even. `b = 0` gives infinity (NaN for `0/0`).
+/// remainder, then round to nearest even. `b = 0` gives +infinity (NaN for `0/0`).
 pub fn fp64_div(stages: usize) -> String {
     let mut s = format!(
         "// emc_fp64_div: y = a / b, round to nearest even, {stages} stages (restoring, 55 quotient bits).
@@ -223,7 +223,6 @@ module emc_fp64_div (
   wire [52:0] dv = {{1'b1, b[51:0]}};
   wire [12:0] ex = {{2'b00, a[62:52]}} - {{2'b00, b[62:52]}} + 13'd1023;
   wire [2:0] sp = zb ? (za ? 3'd3 : 3'd2) : (za ? 3'd1 : 3'd0);
-  wire sg = a[63] ^ b[63];
   wire [54:0] q0 = 55'd0;
 "
     );
@@ -234,7 +233,6 @@ module emc_fp64_div (
         ("dv".to_string(), 53u32),
         ("ex".to_string(), 13),
         ("sp".to_string(), 3),
-        ("sg".to_string(), 1),
     ];
     for st in 0..stages {
         for i in stage_range(n, stages, st) {
@@ -258,13 +256,13 @@ module emc_fp64_div (
             carried_ctx = regs[2..].to_vec();
         }
     }
-    let (ex, sp, sg) = (&carried_ctx[1].0, &carried_ctx[2].0, &carried_ctx[3].0);
+    let (ex, sp) = (&carried_ctx[1].0, &carried_ctx[2].0);
     let _ = writeln!(s, "  wire hi = {q}[54];");
     let _ = writeln!(s, "  wire [52:0] mt = hi ? {q}[54:2] : {q}[53:1];");
     let _ = writeln!(s, "  wire g = hi ? {q}[1] : {q}[0];");
     let _ = writeln!(s, "  wire st = (hi & {q}[0]) | ({r} != 55'd0);");
     let _ = writeln!(s, "  wire [12:0] exn = {ex} - {{12'd0, ~hi}};");
-    round_tail(&mut s, "mt", "g", "st", "exn", sg, sp);
+    round_tail(&mut s, "mt", "g", "st", "exn", sp);
     s.push_str(
         "  reg [63:0] yo;\n  always @(posedge clk) yo <= res;\n  assign y = yo;\nendmodule\n\n",
     );
@@ -273,7 +271,7 @@ module emc_fp64_div (
 
 /// The fp64 square root over `stages` pipeline registers: the bit-pair restoring recurrence on
 /// the significand (made even-exponent) shifted by 56, giving a 55-bit root and a sticky
-/// remainder, then round to nearest even. Zero keeps its sign; infinity and NaN pass.
+/// remainder, then round to nearest even. Zero gives +0; infinity and NaN pass.
 pub fn fp64_sqrt(stages: usize) -> String {
     let mut s = format!(
         "// emc_fp64_sqrt: y = sqrt(x), round to nearest even, {stages} stages (restoring, 55 root bits).
@@ -286,7 +284,6 @@ module emc_fp64_sqrt (
   wire [53:0] rx = e[0] ? {{2'b01, x[51:0]}} : {{1'b1, x[51:0], 1'b0}};
   wire [12:0] ex = ({{2'b00, e}} + 13'd1023) >> 1;
   wire [2:0] sp = (e == 11'd0) ? 3'd1 : ((e == 11'h7ff) ? 3'd4 : 3'd0);
-  wire sg = x[63];
   wire [63:0] xp = x;
   wire [58:0] m0 = 59'd0;
   wire [54:0] t0 = 55'd0;
@@ -299,7 +296,6 @@ module emc_fp64_sqrt (
         ("rx".to_string(), 54u32),
         ("ex".to_string(), 13),
         ("sp".to_string(), 3),
-        ("sg".to_string(), 1),
         ("xp".to_string(), 64),
     ];
     for st in 0..stages {
@@ -332,11 +328,11 @@ module emc_fp64_sqrt (
             ctx = regs[2..].to_vec();
         }
     }
-    let (ex, sp, sg, xp) = (&ctx[1].0, &ctx[2].0, &ctx[3].0, &ctx[4].0);
+    let (ex, sp, xp) = (&ctx[1].0, &ctx[2].0, &ctx[3].0);
     let _ = writeln!(s, "  wire [52:0] mt = {t}[54:2];");
     let _ = writeln!(s, "  wire g = {t}[1];");
     let _ = writeln!(s, "  wire st = {t}[0] | ({m} != 59'd0);");
-    round_tail(&mut s, "mt", "g", "st", ex, sg, sp);
+    round_tail(&mut s, "mt", "g", "st", ex, sp);
     let _ = writeln!(s, "  wire [63:0] resp = ({sp} == 3'd4) ? {xp} : res;");
     s.push_str(
         "  reg [63:0] yo;\n  always @(posedge clk) yo <= resp;\n  assign y = yo;\nendmodule\n\n",

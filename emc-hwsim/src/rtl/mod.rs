@@ -333,7 +333,8 @@ impl<'a> Emitter<'a> {
         }
     }
 
-    /// binary32 → binary64 (exact; subnormal inputs normalised by a leading-one search).
+    /// binary32 → binary64 (exact; subnormal inputs normalised by a leading-one search; the
+    /// unit's inputs are finite, so there is no infinity/NaN path).
     fn f32_to_f64(&mut self, p: &str, f: &str) -> String {
         self.wire(8, &format!("{p}_e"), &format!("{f}[30:23]"));
         self.wire(23, &format!("{p}_m"), &format!("{f}[22:0]"));
@@ -365,13 +366,14 @@ impl<'a> Emitter<'a> {
             &format!("{p}_d"),
             &format!(
                 "({p}_e == 8'd0) ? (({p}_m == 23'd0) ? {{{f}[31], 63'd0}} : {{{f}[31], {p}_se, {p}_ms, 29'd0}}) : \
-                 (({p}_e == 8'hff) ? {{{f}[31], 11'h7ff, {p}_m, 29'd0}} : {{{f}[31], {p}_ne, {p}_m, 29'd0}})"
+                 {{{f}[31], {p}_ne, {p}_m, 29'd0}}"
             ),
         )
     }
 
     /// Float→fixed with clamp to `n` bits (`n` a 7-bit signal or constant), as [`crate::fixed`].
-    fn f2fix(&mut self, p: &str, v: &str, n: &str) -> String {
+    /// `nan` adds the NaN → 0 rule (only the size formula can form a NaN: `0 / D` with `D = 0`).
+    fn f2fix(&mut self, p: &str, v: &str, n: &str, nan: bool) -> String {
         self.wire(
             13,
             &format!("{p}_k"),
@@ -397,7 +399,11 @@ impl<'a> Emitter<'a> {
         self.wire(
             1,
             &format!("{p}_z"),
-            &format!("{v}[63] | ({v}[62:0] > 63'h7ff0000000000000) | {p}_k[12]"),
+            &if nan {
+                format!("{v}[63] | ({v}[62:0] > 63'h7ff0000000000000) | {p}_k[12]")
+            } else {
+                format!("{v}[63] | {p}_k[12]")
+            },
         );
         self.wire(
             64,
@@ -535,6 +541,7 @@ impl<'a> Emitter<'a> {
                             &format!("fx{}", AX[a]),
                             &pos[a].clone(),
                             &format!("nbits_{}", AX[a]),
+                            false,
                         );
                         let q = self.reg(64, &format!("q_{}", AX[a]), &q);
                         pos[a] = self.delay(64, &q, lat - 1);
@@ -644,7 +651,7 @@ impl<'a> Emitter<'a> {
                     }
                 }
                 Op::SizeFix => {
-                    let q = self.f2fix("fxs", &sd.clone(), &format!("7'd{sbits}"));
+                    let q = self.f2fix("fxs", &sd.clone(), &format!("7'd{sbits}"), true);
                     qs = self.reg(sbits, "qsize", &format!("{q}[{}:0]", sbits - 1));
                     for &a in &axes {
                         pos[a] = self.delay(64, &pos[a].clone(), 1);
@@ -662,7 +669,7 @@ impl<'a> Emitter<'a> {
                         if parts.is_empty() {
                             parts.push("64'd0".into());
                         }
-                        self.wire(64, "packed", &parts.join(" | "))
+                        self.wire(64, "pword", &parts.join(" | "))
                     } else {
                         word.clone()
                     };
@@ -780,7 +787,8 @@ impl<'a> Emitter<'a> {
 /// vector's box at its cycle and checks every output cycle against the vectors (a code where
 /// one is due, none elsewhere). Prints `PASS n vectors` or `FAIL …` and finishes.
 fn testbench(unit: &Unit, words: usize, nv: usize) -> String {
-    let nv = nv.max(1);
+    // Room for external vector files of up to 4096 boxes (override NV for more).
+    let nv = nv.max(4096);
     format!(
         "// emc_unit_tb: self-checking testbench of emc_unit for {spec}; expected codes and cycles from
 // the model (emc_unit.vectors). Plusargs: +vectors=FILE +regs=FILE.
@@ -827,6 +835,10 @@ module emc_unit_tb;
         if (ch == 35) rc = $fgets(skip, fd);
       end else begin
         rc = $ungetc(ch, fd);
+        if (n >= NV) begin
+          $display(\"FAIL more than NV = %0d vectors; rerun with a larger NV\", NV);
+          $finish;
+        end
         rc = $fscanf(fd, \"%h %h %h %h %h %h %h %d %d\\n\", f0, f1, f2, f3, f4, f5, c, vin[n], vout[n]);
         if (rc != 9) begin
           $display(\"FAIL malformed vector line %0d\", n + 1);
