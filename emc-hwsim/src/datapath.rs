@@ -2,6 +2,7 @@
 //! stages they instantiate (only those the configuration needs), and the stage operations that
 //! compute every code — fp64 adders and multipliers, float→fixed, size comparators or the
 //! sqrt/divide path, and the routing network — without calling emc-core's encoder.
+#![forbid(unsafe_code)]
 
 use core::fmt;
 

@@ -1,5 +1,6 @@
 //! Errors of the hardware model: bad knobs (lanes, FIFO depths, bandwidth, clock) are refused
 //! when the unit or its memory port is built, never discovered as a hang or a panic later.
+#![forbid(unsafe_code)]
 
 use thiserror::Error;
 

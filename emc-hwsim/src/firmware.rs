@@ -2,6 +2,7 @@
 //! writes the configuration registers — the bit schedule of a layout, the position scales and
 //! the size thresholds — using the unit's own arithmetic (its float→fixed and size-formula
 //! operations), never emc-core's quantiser. emc-core stays the test oracle of all three.
+#![forbid(unsafe_code)]
 
 use emc_core::{Channel, LayoutSpec, SizeTransform};
 

@@ -12,6 +12,7 @@
 //! and the network moves packed bit `src[j]` to code bit `j`. Code position `k` (MSB first) is
 //! code bit `len − 1 − k`; the `r`-th occurrence of channel `c` in the pattern takes the field
 //! bit `offset[c] + n_c − 1 − r` (channel values are written MSB first, as in the pattern).
+#![forbid(unsafe_code)]
 
 use emc_core::Layout;
 

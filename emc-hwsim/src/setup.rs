@@ -1,6 +1,7 @@
 //! Per-frame setup of the unit: the scene-bounds pass over all AABBs through the memory port,
 //! the layout schedule, the routing controls and the size thresholds, in cycles of the unit
 //! (register writes over a 64-bit configuration bus, one per cycle) and in host work.
+#![forbid(unsafe_code)]
 
 use core::fmt;
 

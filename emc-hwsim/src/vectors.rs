@@ -15,6 +15,7 @@
 //! offered, `out` the cycle in which the code is on the unit's output. Cycles come from the
 //! model: the lane recurrence `in(i) = max(in(i−1), in(i−L) + II)` with the stage list's
 //! initiation interval, and `out = in + depth` (the sum of the stage latencies).
+#![forbid(unsafe_code)]
 
 use core::fmt::Write;
 

@@ -11,6 +11,7 @@
 //! products and roots of `f32`-range values stay within 2^-300..2^270); subnormal operands are
 //! read as zero and nothing rounds to a subnormal, as the module docs of [`crate::fixed`]
 //! argue for the exponent adder.
+#![forbid(unsafe_code)]
 
 use core::fmt::Write;
 

@@ -15,6 +15,7 @@
 //! image word per cycle), `in_valid`/`in_box` (six binary32 fields, `min.x` in bits 31:0 up to
 //! `max.z` in bits 191:160), and `out_valid`/`out_code` `depth` cycles later. The unit accepts
 //! a box every cycle (II = 1); the memory port is the model's business, not the RTL's.
+#![forbid(unsafe_code)]
 
 // Per-axis registers and names are parallel arrays indexed by the axis number.
 #![allow(clippy::needless_range_loop)]
@@ -429,6 +430,95 @@ impl<'a> Emitter<'a> {
         y.to_string()
     }
 
+    /// The comparator key of d² (its pattern when a non-negative number, else 0).
+    fn key(&mut self, d2: &str) -> String {
+        self.wire(
+            63,
+            "key0",
+            &format!("({d2}[63] | ({d2}[62:0] > 63'h7ff0000000000000)) ? 63'd0 : {d2}[62:0]"),
+        )
+    }
+
+    /// The `S`-step binary threshold search (one register level per step); returns the size.
+    fn search(&mut self, d2: &str, sbits: u32) -> String {
+        let mut key = self.key(d2);
+        let mut spos = String::new();
+        for k in 0..sbits {
+            // spos has k decided bits; the candidate index is {spos, 1, 0...}.
+            let low = sbits - 1 - k;
+            let idx = match (k, low) {
+                (0, 0) => "1'b1".to_string(),
+                (0, l) => format!("{{1'b1, {l}'d0}}"),
+                (_, 0) => format!("{{{spos}, 1'b1}}"),
+                (_, l) => format!("{{{spos}, 1'b1, {l}'d0}}"),
+            };
+            let sel = self.wire(63, &format!("thrsel{k}"), &format!("thr[{idx}]"));
+            let ge = self.wire(1, &format!("ge{k}"), &format!("{sel} <= {key}"));
+            spos = if k == 0 {
+                self.reg(1, "spos1", &ge)
+            } else {
+                self.reg(k + 1, &format!("spos{}", k + 1), &format!("{{{spos}, {ge}}}"))
+            };
+            if k + 1 < sbits {
+                key = self.reg(63, &format!("key{}", k + 1), &key.clone());
+            }
+        }
+        spos
+    }
+
+    /// The comparator bank and population count (two register levels); returns the size.
+    fn bank(&mut self, d2: &str, sbits: u32) -> String {
+        let t = (1u32 << sbits) - 1;
+        let key0 = self.key(d2);
+        let mut bits = Vec::new();
+        for k in 1..=t {
+            bits.push(self.wire(1, &format!("bge{k}"), &format!("thr[{k}] <= {key0}")));
+        }
+        bits.reverse();
+        let v = self.reg(t, "bank", &format!("{{{}}}", bits.join(", ")));
+        let sum: Vec<String> = (0..t)
+            .map(|k| format!("{{{}'d0, {v}[{k}]}}", sbits))
+            .collect();
+        let cnt = self.wire(sbits + 1, "popcnt", &sum.join(" + "));
+        self.reg(sbits, "qsize", &format!("{cnt}[{}:0]", sbits - 1))
+    }
+
+    /// Beneš columns `cols` on the word `w` (controls `ctl<i>`); returns the output word.
+    fn benes(&mut self, w: &str, b: &crate::routing::Benes, cols: core::ops::Range<usize>) -> String {
+        let lanes = b.lanes();
+        let mut w = w.to_string();
+        for i in cols {
+            let d = b.distance(i);
+            let ctl = if lanes < 64 {
+                format!("{{{}'d0, ctl{i}}}", 64 - lanes)
+            } else {
+                format!("ctl{i}")
+            };
+            let t = self.wire(64, &format!("bt{i}"), &format!("((({w} >> {d}) ^ {w}) & {ctl})"));
+            w = self.wire(64, &format!("bw{i}"), &format!("{w} ^ {t} ^ ({t} << {d})"));
+        }
+        w
+    }
+
+    /// The crossbar on `w` (selects packed in `sel<k>` words); returns the output word.
+    fn crossbar(&mut self, w: &str, lanes: u32) -> String {
+        let sb = sel_bits(lanes);
+        let per = sels_per_word(lanes);
+        let mut bits = Vec::new();
+        for j in 0..lanes {
+            let (wd, k) = (j / per, j % per);
+            let lo = k * sb;
+            bits.push(self.wire(1, &format!("xb{j}"), &format!("{w}[sel{wd}[{}:{}]]", lo + sb - 1, lo)));
+        }
+        bits.reverse();
+        let pad = if lanes < 64 {
+            format!("{}'d0, ", 64 - lanes)
+        } else {
+            String::new()
+        };
+        self.wire(64, "xbar", &format!("{{{pad}{}}}", bits.join(", ")))
+    }
+
     /// The whole file: the arithmetic blocks used, then `emc_unit`.
     fn top(mut self) -> String {
         let u = self.unit;
@@ -467,8 +557,6 @@ impl<'a> Emitter<'a> {
         let mut dl: Vec<String> = vec![String::new(); 3];
         let mut acc = String::new();
         let mut d2 = String::new();
-        let mut key = String::new();
-        let mut spos = String::new();
         let mut sd = String::new();
         let mut qs = String::new();
         let mut word = String::new();
@@ -552,60 +640,14 @@ impl<'a> Emitter<'a> {
                 }
                 Op::SearchStep(k) => {
                     if k == 0 {
-                        key = self.wire(
-                            63,
-                            "key0",
-                            &format!("({d2}[63] | ({d2}[62:0] > 63'h7ff0000000000000)) ? 63'd0 : {d2}[62:0]"),
-                        );
-                    }
-                    // pos has k decided bits; the candidate index is {pos, 1, 0...}.
-                    let low = sbits - 1 - k;
-                    let idx = match (k, low) {
-                        (0, 0) => "1'b1".to_string(),
-                        (0, l) => format!("{{1'b1, {l}'d0}}"),
-                        (_, 0) => format!("{{{spos}, 1'b1}}"),
-                        (_, l) => format!("{{{spos}, 1'b1, {l}'d0}}"),
-                    };
-                    let sel = self.wire(63, &format!("thrsel{k}"), &format!("thr[{idx}]"));
-                    let ge = self.wire(1, &format!("ge{k}"), &format!("{sel} <= {key}"));
-                    spos = if k == 0 {
-                        self.reg(1, "spos1", &ge)
-                    } else {
-                        self.reg(
-                            k + 1,
-                            &format!("spos{}", k + 1),
-                            &format!("{{{spos}, {ge}}}"),
-                        )
-                    };
-                    if k + 1 < sbits {
-                        key = self.reg(63, &format!("key{}", k + 1), &key.clone());
-                    } else {
-                        qs = spos.clone();
+                        qs = self.search(&d2.clone(), sbits);
                     }
                     for &a in &axes {
                         pos[a] = self.delay(64, &pos[a].clone(), 1);
                     }
                 }
                 Op::Bank => {
-                    let t = (1u32 << sbits) - 1;
-                    let key0 = self.wire(
-                        63,
-                        "key0",
-                        &format!(
-                            "({d2}[63] | ({d2}[62:0] > 63'h7ff0000000000000)) ? 63'd0 : {d2}[62:0]"
-                        ),
-                    );
-                    let mut bits = Vec::new();
-                    for k in 1..=t {
-                        bits.push(self.wire(1, &format!("bge{k}"), &format!("thr[{k}] <= {key0}")));
-                    }
-                    bits.reverse();
-                    let v = self.reg(t, "bank", &format!("{{{}}}", bits.join(", ")));
-                    let sum: Vec<String> = (0..t)
-                        .map(|k| format!("{{{}'d0, {v}[{k}]}}", sbits))
-                        .collect();
-                    let cnt = self.wire(sbits + 1, "popcnt", &sum.join(" + "));
-                    qs = self.reg(sbits, "qsize", &format!("{cnt}[{}:0]", sbits - 1));
+                    qs = self.bank(&d2.clone(), sbits);
                     for &a in &axes {
                         pos[a] = self.delay(64, &pos[a].clone(), 2);
                     }
@@ -674,49 +716,8 @@ impl<'a> Emitter<'a> {
                         word.clone()
                     };
                     match &r.net {
-                        Network::Benes(b) => {
-                            let lanes = b.lanes();
-                            for i in from as usize..to as usize {
-                                let d = b.distance(i);
-                                let ctl = if lanes < 64 {
-                                    format!("{{{}'d0, ctl{i}}}", 64 - lanes)
-                                } else {
-                                    format!("ctl{i}")
-                                };
-                                let t = self.wire(
-                                    64,
-                                    &format!("bt{i}"),
-                                    &format!("((({w} >> {d}) ^ {w}) & {ctl})"),
-                                );
-                                w = self.wire(
-                                    64,
-                                    &format!("bw{i}"),
-                                    &format!("{w} ^ {t} ^ ({t} << {d})"),
-                                );
-                            }
-                        }
-                        Network::Crossbar(x) => {
-                            let lanes = x.lanes();
-                            let sb = sel_bits(lanes);
-                            let per = sels_per_word(lanes);
-                            let mut bits = Vec::new();
-                            for j in 0..lanes {
-                                let (wd, k) = (j / per, j % per);
-                                let lo = k * sb;
-                                bits.push(self.wire(
-                                    1,
-                                    &format!("xb{j}"),
-                                    &format!("{w}[sel{wd}[{}:{}]]", lo + sb - 1, lo),
-                                ));
-                            }
-                            bits.reverse();
-                            let pad = if lanes < 64 {
-                                format!("{}'d0, ", 64 - lanes)
-                            } else {
-                                String::new()
-                            };
-                            w = self.wire(64, "xbar", &format!("{{{pad}{}}}", bits.join(", ")));
-                        }
+                        Network::Benes(b) => w = self.benes(&w, b, from as usize..to as usize),
+                        Network::Crossbar(x) => w = self.crossbar(&w, x.lanes()),
                         Network::Fixed { .. } => {}
                     }
                     self.uid += 1;
@@ -904,4 +905,164 @@ endmodule
         depth = unit.depth(),
         ii = unit.lane_ii(),
     )
+}
+
+/// One block of the configured unit as a module of its own, for synthesis: the same emitter
+/// code as in `emc_unit`, with the block's operands (and configuration registers) as ports.
+#[derive(Clone, Debug)]
+pub struct BlockSource {
+    /// Module name.
+    pub module: String,
+    /// Verilog of the module (and of the blocks it instantiates).
+    pub verilog: String,
+    /// Instances of the block in the unit.
+    pub instances: u32,
+    /// Pipeline stages the model gives the block (register levels inside it; a combinational
+    /// block with `n` stages is split over `n` cycles in the unit).
+    pub stages: u32,
+}
+
+impl<'a> Emitter<'a> {
+    /// A wrapper module around an emitter body.
+    fn module(name: &str, ports: &str, body: &str) -> String {
+        format!("module {name} (\n{ports}\n);\n{body}endmodule\n\n")
+    }
+}
+
+/// The blocks of a unit as separate modules (only those the configuration instantiates): the
+/// fp64 adder and multiplier, the square root and divider, binary32→binary64, float→fixed,
+/// the threshold search or bank, and the Beneš network or crossbar.
+pub fn blocks(unit: &Unit) -> Vec<BlockSource> {
+    let r = unit.registers();
+    let img = image(unit);
+    let top = Emitter::new(unit, &img).top();
+    let count = |m: &str| top.matches(&format!("{m} u_")).count() as u32;
+    let mut v = vec![
+        BlockSource {
+            module: "emc_fp64_add".into(),
+            verilog: arith::fp64_add(),
+            instances: count("emc_fp64_add"),
+            stages: FP_LATENCY,
+        },
+        BlockSource {
+            module: "emc_fp64_mul".into(),
+            verilog: arith::fp64_mul(),
+            instances: count("emc_fp64_mul"),
+            stages: FP_LATENCY,
+        },
+    ];
+    if let SizeUnit::Formula { .. } = r.size {
+        let l = SQRT_DIV_PIPELINED_LATENCY;
+        v.push(BlockSource {
+            module: "emc_fp64_sqrt".into(),
+            verilog: arith::fp64_sqrt(l as usize),
+            instances: count("emc_fp64_sqrt"),
+            stages: l,
+        });
+        v.push(BlockSource {
+            module: "emc_fp64_div".into(),
+            verilog: arith::fp64_div(l as usize),
+            instances: count("emc_fp64_div"),
+            stages: l,
+        });
+    }
+    let body = |f: &mut dyn FnMut(&mut Emitter) -> String| {
+        let mut e = Emitter::new(unit, &img);
+        let out = f(&mut e);
+        e.line(&format!("assign y = {out};"));
+        e.s
+    };
+    let n_conv = top.matches("_se = ").count() as u32;
+    v.push(BlockSource {
+        module: "blk_f32_to_f64".into(),
+        verilog: Emitter::module(
+            "blk_f32_to_f64",
+            "  input [31:0] f,\n  output [63:0] y",
+            &body(&mut |e| e.f32_to_f64("cv", "f")),
+        ),
+        instances: n_conv,
+        stages: 0,
+    });
+    let axes = r.axis_on.iter().filter(|&&a| a).count() as u32;
+    v.push(BlockSource {
+        module: "blk_f2fix".into(),
+        verilog: Emitter::module(
+            "blk_f2fix",
+            "  input [63:0] v,\n  input [6:0] n,\n  output [63:0] y",
+            &body(&mut |e| e.f2fix("fx", "v", "n", false)),
+        ),
+        instances: axes,
+        stages: 1,
+    });
+    if let SizeUnit::Thresholds { bits, .. } = &r.size {
+        let t = (1u32 << bits) - 1;
+        let mut decl = format!("  wire [62:0] thr [1:{t}];\n");
+        for k in 1..=t {
+            decl.push_str(&format!(
+                "  assign thr[{k}] = thr_flat[{}:{}];\n",
+                63 * k - 1,
+                63 * (k - 1)
+            ));
+        }
+        let bank = unit.stages().iter().any(|s| s.op == Op::Bank);
+        let name = if bank { "blk_bank" } else { "blk_search" };
+        let b = *bits;
+        let inner = body(&mut |e| if bank { e.bank("d2", b) } else { e.search("d2", b) });
+        v.push(BlockSource {
+            module: name.into(),
+            verilog: Emitter::module(
+                name,
+                &format!(
+                    "  input clk,\n  input [63:0] d2,\n  input [{}:0] thr_flat,\n  output [{}:0] y",
+                    63 * t - 1,
+                    b - 1
+                ),
+                &format!("{decl}{inner}"),
+            ),
+            instances: 1,
+            stages: if bank { 2 } else { b },
+        });
+    }
+    match &r.net {
+        Network::Fixed { .. } => {}
+        Network::Benes(b) => {
+            let mut ports = String::from("  input [63:0] w,\n");
+            for i in 0..b.columns() {
+                ports.push_str(&format!("  input [{}:0] ctl{i},\n", b.lanes() - 1));
+            }
+            ports.push_str("  output [63:0] y");
+            let cols = b.columns();
+            v.push(BlockSource {
+                module: "blk_benes".into(),
+                verilog: Emitter::module(
+                    "blk_benes",
+                    &ports,
+                    &body(&mut |e| e.benes("w", b, 0..cols)),
+                ),
+                instances: 1,
+                stages: 2,
+            });
+        }
+        Network::Crossbar(x) => {
+            let lanes = x.lanes();
+            let words = lanes.div_ceil(sels_per_word(lanes));
+            let mut ports = String::from("  input [63:0] w,\n");
+            for k in 0..words {
+                ports.push_str(&format!("  input [63:0] sel{k},\n"));
+            }
+            ports.push_str("  output [63:0] y");
+            v.push(BlockSource {
+                module: "blk_crossbar".into(),
+                verilog: Emitter::module(
+                    "blk_crossbar",
+                    &ports,
+                    &body(&mut |e| e.crossbar("w", lanes)),
+                ),
+                instances: 1,
+                stages: 1,
+            });
+        }
+    }
+    v.retain(|b| b.instances > 0);
+    v
 }
