@@ -80,7 +80,7 @@ fn norm(s: &str) -> String {
 }
 
 #[test]
-fn header_is_current() {
+fn hw_header_is_current() {
     let header = std::fs::read_to_string(root().join("emc-hwsim/include/emc_hwsim.h")).unwrap();
     let declared: Vec<String> = header
         .lines()
@@ -90,13 +90,27 @@ fn header_is_current() {
     let rust = rust_prototypes();
     assert_eq!(rust.len(), 9, "{rust:?}");
     for p in &rust {
-        assert!(declared.contains(p), "header lacks or differs on `{p}`; it has {declared:#?}");
+        assert!(
+            declared.contains(p),
+            "header lacks or differs on `{p}`; it has {declared:#?}"
+        );
     }
-    assert_eq!(declared.len(), rust.len(), "header declares extra functions: {declared:#?}");
+    assert_eq!(
+        declared.len(),
+        rust.len(),
+        "header declares extra functions: {declared:#?}"
+    );
     // The status codes and the box layout as C sees them.
-    for (i, name) in ["OK", "NULL_POINTER", "BAD_LAYOUT", "BAD_SCENE", "BAD_CONFIG", "PANIC"]
-        .iter()
-        .enumerate()
+    for (i, name) in [
+        "OK",
+        "NULL_POINTER",
+        "BAD_LAYOUT",
+        "BAD_SCENE",
+        "BAD_CONFIG",
+        "PANIC",
+    ]
+    .iter()
+    .enumerate()
     {
         assert!(header.contains(&format!("EMC_{name} = {i}")), "EMC_{name}");
     }
@@ -129,7 +143,7 @@ const GOLDEN: [(&str, &str, u32); 3] = [
 /// Every golden file equals what the model gives today, and its codes equal emc-core's.
 /// `EMC_BLESS=1` rewrites them (after a deliberate change of the model).
 #[test]
-fn golden_vectors_equal_the_model_and_emc_core() {
+fn hw_golden_vectors_equal_the_model_and_emc_core() {
     let scene = golden_scene();
     let frame = Frame::new(&scene).unwrap();
     for (layout, file, routing) in GOLDEN {
@@ -155,7 +169,10 @@ fn golden_vectors_equal_the_model_and_emc_core() {
             std::fs::write(&path, &text).unwrap();
         }
         let golden = std::fs::read_to_string(&path).unwrap();
-        assert_eq!(golden, text, "{file} differs from the model (EMC_BLESS=1 rewrites it)");
+        assert_eq!(
+            golden, text,
+            "{file} differs from the model (EMC_BLESS=1 rewrites it)"
+        );
         let enc = Encoder::new(&spec, &frame);
         for v in parse(&golden).unwrap() {
             assert_eq!(v.code, enc.encode(&v.aabb));
@@ -164,7 +181,7 @@ fn golden_vectors_equal_the_model_and_emc_core() {
 }
 
 #[test]
-fn c_program_reproduces_the_golden_vectors() {
+fn hw_c_program_reproduces_the_golden_vectors() {
     if Command::new("gcc").arg("--version").output().is_err() {
         if std::env::var("EMC_REQUIRE_HW_TOOLS").is_ok_and(|v| v == "1") {
             panic!("gcc is missing; EMC_REQUIRE_HW_TOOLS=1 makes this a failure");
@@ -177,7 +194,11 @@ fn c_program_reproduces_the_golden_vectors() {
     let libdir = exe.parent().unwrap().parent().unwrap().to_path_buf();
     let a = libdir.join("libemc_hwsim.a");
     let so = libdir.join("libemc_hwsim.so");
-    assert!(a.is_file() && so.is_file(), "no libemc_hwsim.a/.so in {}", libdir.display());
+    assert!(
+        a.is_file() && so.is_file(),
+        "no libemc_hwsim.a/.so in {}",
+        libdir.display()
+    );
     let work = Path::new(env!("CARGO_TARGET_TMPDIR")).join("ffi");
     std::fs::create_dir_all(&work).unwrap();
     // The scene in the vectors format (codes and cycles unused by the reader's scene role).
@@ -193,7 +214,15 @@ fn c_program_reproduces_the_golden_vectors() {
     let src = root().join("tests/data/hwsim_ffi_test.c");
     let inc = root().join("emc-hwsim/include");
     for (kind, link) in [
-        ("static", vec![a.display().to_string(), "-lpthread".into(), "-ldl".into(), "-lm".into()]),
+        (
+            "static",
+            vec![
+                a.display().to_string(),
+                "-lpthread".into(),
+                "-ldl".into(),
+                "-lm".into(),
+            ],
+        ),
         (
             "dynamic",
             vec![

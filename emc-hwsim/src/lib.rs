@@ -38,8 +38,8 @@
 pub mod cost;
 pub mod datapath;
 mod error;
-pub mod ffi;
 pub mod fast;
+pub mod ffi;
 pub mod firmware;
 pub mod fixed;
 pub mod memory;

@@ -103,8 +103,8 @@ fn tool(name: &str, args: &[&str], dir: &Path) -> Result<String, HwError> {
                 "cannot run {name}: {e} (Debian: apt-get install yosys opensta qflow-tech-osu018)"
             ))
         })?;
-    let text = String::from_utf8_lossy(&out.stdout).into_owned()
-        + &String::from_utf8_lossy(&out.stderr);
+    let text =
+        String::from_utf8_lossy(&out.stdout).into_owned() + &String::from_utf8_lossy(&out.stderr);
     if !out.status.success() {
         let tail: Vec<&str> = text.lines().rev().take(15).collect();
         return Err(HwError::Rtl(format!(
@@ -145,13 +145,12 @@ pub fn gates(verilog: &str, top: &str, o: &SynthOptions) -> Result<Gates, HwErro
     let cells = log
         .lines()
         .filter_map(|l| l.trim().strip_prefix("Number of cells:"))
-        .last()
+        .next_back()
         .and_then(|v| v.trim().parse().ok())
         .ok_or_else(|| HwError::Rtl(format!("no cell count in {}", dir.display())))?;
     let area_um2 = log
         .lines()
-        .filter(|l| l.contains("Chip area for module"))
-        .last()
+        .rfind(|l| l.contains("Chip area for module"))
         .and_then(|l| l.rsplit(':').next())
         .and_then(|v| v.trim().parse().ok())
         .ok_or_else(|| HwError::Rtl(format!("no area in {}", dir.display())))?;
@@ -226,13 +225,15 @@ pub fn synthesize(unit: &Unit, o: &SynthOptions) -> Result<SynthReport, HwError>
         let g = gates(&b.verilog, &b.module, o)?;
         rows.push(Row {
             model_um2_40: model_area(unit, &b),
-            model_ns_40: (b.stages > 0).then_some(if b.module.starts_with("emc_fp64") {
-                1.0 // pipelined: the worst stage against one cycle
-            } else if b.module == "blk_search" {
-                1.0 // one step per cycle
-            } else {
-                b.stages as f64
-            }),
+            // Pipelined blocks (fp units, one search step per cycle): the worst stage against
+            // one cycle; combinational ones: the whole path against their stages.
+            model_ns_40: (b.stages > 0).then_some(
+                if b.module.starts_with("emc_fp64") || b.module == "blk_search" {
+                    1.0
+                } else {
+                    b.stages as f64
+                },
+            ),
             name: b.module,
             instances: b.instances,
             stages: b.stages,
@@ -308,7 +309,8 @@ impl fmt::Display for SynthReport {
         for r in self.blocks.iter().chain(core::iter::once(&self.total)) {
             let ma = self.model_area(r);
             let md = self.model_delay(r);
-            let opt = |v: Option<f64>, p: usize| v.map_or("—".to_string(), |x| format!("{x:.p$}"));
+            let opt =
+                |v: Option<f64>, p: usize| v.map_or("—".to_string(), |x| format!("{x:.p$}"));
             writeln!(
                 f,
                 "| {} | {} | {} | {} | {:.0} | {} | {} | {} | {:.2} | {} | {} |",
@@ -327,9 +329,16 @@ impl fmt::Display for SynthReport {
         }
         let out: Vec<&str> = self.outside().iter().map(|r| r.name.as_str()).collect();
         if out.is_empty() {
-            writeln!(f, "every priced block is within ±25 % of the calibrated model")
+            writeln!(
+                f,
+                "every priced block is within ±25 % of the calibrated model"
+            )
         } else {
-            writeln!(f, "outside ±25 % of the calibrated model: {}", out.join(", "))
+            writeln!(
+                f,
+                "outside ±25 % of the calibrated model: {}",
+                out.join(", ")
+            )
         }
     }
 }

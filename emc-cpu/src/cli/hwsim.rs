@@ -78,6 +78,10 @@ pub struct HwsimArgs {
     /// time them with OpenSTA; print them beside the cost model, and the EMC-vs-Morton table.
     #[arg(long)]
     pub synth: bool,
+    /// With --synth: also synthesise whole morton63, emc64-var (Beneš and crossbar) and
+    /// emc64-sort units and print the EMC-vs-Morton table (several minutes each).
+    #[arg(long)]
+    pub synth_compare: bool,
     /// Liberty file for --synth.
     #[arg(long, default_value = emc_hwsim::synth::OSU018_LIB)]
     pub liberty: std::path::PathBuf,
@@ -93,7 +97,12 @@ fn vector_boxes(boxes: &[Aabb], count: usize) -> Vec<Aabb> {
 }
 
 /// `--verilog`, `--vectors` and `--synth` of the detailed unit.
-fn hardware_outputs(a: &HwsimArgs, unit: &Unit, frame: &Frame, boxes: &[Aabb]) -> anyhow::Result<()> {
+fn hardware_outputs(
+    a: &HwsimArgs,
+    unit: &Unit,
+    frame: &Frame,
+    boxes: &[Aabb],
+) -> anyhow::Result<()> {
     let vb = vector_boxes(boxes, a.vector_count);
     if let Some(dir) = &a.verilog {
         let files = emc_hwsim::rtl::emit(unit, &vb)?;
@@ -125,6 +134,14 @@ fn hardware_outputs(a: &HwsimArgs, unit: &Unit, frame: &Frame, boxes: &[Aabb]) -
         let t0 = Instant::now();
         let rep = emc_hwsim::synth::synthesize(unit, &o)?;
         println!("\n{rep}");
+        println!("(synthesis took {:.0} s)", t0.elapsed().as_secs_f64());
+    }
+    if a.synth && a.synth_compare {
+        let o = emc_hwsim::synth::SynthOptions {
+            liberty: a.liberty.clone(),
+            ..Default::default()
+        };
+        let t0 = Instant::now();
         // The seed's question: the EMC unit against the plain Morton unit, in gates.
         let d = *unit.options();
         let mut rows = Vec::new();
@@ -136,11 +153,27 @@ fn hardware_outputs(a: &HwsimArgs, unit: &Unit, frame: &Frame, boxes: &[Aabb]) -
         ] {
             let u = Unit::for_spec(&s, frame, &UnitOptions { routing: r, ..d })?;
             let files = emc_hwsim::rtl::emit(&u, &[])?;
-            let g = emc_hwsim::synth::gates(&files.verilog, "emc_unit", &emc_hwsim::synth::SynthOptions {
-                work: o.work.join(format!("{s}-{}", u.registers().net.name().replace(' ', "-"))),
-                ..o.clone()
-            })?;
-            rows.push((format!("{s} ({})", u.registers().net.name()), g, cost(&u), u.depth()));
+            eprintln!(
+                "synthesising the whole {s} ({}) unit ...",
+                u.registers().net.name()
+            );
+            let g = emc_hwsim::synth::gates(
+                &files.verilog,
+                "emc_unit",
+                &emc_hwsim::synth::SynthOptions {
+                    work: o.work.join(format!(
+                        "{s}-{}",
+                        u.registers().net.name().replace(' ', "-")
+                    )),
+                    ..o.clone()
+                },
+            )?;
+            rows.push((
+                format!("{s} ({})", u.registers().net.name()),
+                g,
+                cost(&u),
+                u.depth(),
+            ));
         }
         println!("EMC unit vs plain Morton unit (OSU 0.18 µm synthesis; energy from the model at 40 nm):");
         println!("| unit | cells | area µm² | vs Morton | latency cycles | critical path ns | max clock MHz | pJ/code (model) | vs Morton |");

@@ -69,10 +69,12 @@ module emc_fp64_add (
   wire [56:0] sum = s1_eff ? (mlx - msx2) : (mlx + msx2);
 ",
     );
-    // Leading-zero count of the 57-bit sum as one priority chain of wires.
+    // Leading-zero count of the 57-bit sum as one priority chain of wires. Bits 1 and 0 never
+    // lead: they are non-zero only when the smaller operand was shifted by d >= 2, and then
+    // the difference keeps its leading one at bit 54 or above (a zero sum is flagged apart).
     let _ = writeln!(s, "  wire [6:0] lz57 = 7'd57;");
     let mut prev = "lz57".to_string();
-    for i in 0..57 {
+    for i in 2..57 {
         let name = format!("lz{i}");
         let _ = writeln!(
             s,

@@ -3,7 +3,7 @@
 //! testbench and a vectors file ([`crate::vectors`]).
 //!
 //! One description per block: every pipeline stage of [`Unit::stages`] is an [`Op`]; the model's
-//! behaviour of an op is [`Unit::apply`], its Verilog is the arm of [`Emitter::stage`] for the
+//! behaviour of an op is [`Unit::apply`], its Verilog is the arm of the emitter's stage loop for the
 //! same op, emitted with the stage's latency as register levels, and its configuration words
 //! come from [`image`] — the single list that the `$readmemh` file, the Verilog configuration
 //! registers and the setup cost ([`crate::setup`]) are all made from. Nothing the configuration
@@ -16,7 +16,6 @@
 //! `max.z` in bits 191:160), and `out_valid`/`out_code` `depth` cycles later. The unit accepts
 //! a box every cycle (II = 1); the memory port is the model's business, not the RTL's.
 #![forbid(unsafe_code)]
-
 // Per-axis registers and names are parallel arrays indexed by the axis number.
 #![allow(clippy::needless_range_loop)]
 
@@ -45,6 +44,12 @@ pub struct ImageWord {
     pub width: u32,
     /// The value.
     pub value: u64,
+}
+
+/// The lower lanes of the 2×2 switches of a Beneš column with exchange distance `d`, in
+/// order (lane `p` is switched with `p + d`).
+fn lower_lanes(lanes: u32, d: u32) -> impl Iterator<Item = u32> {
+    (0..lanes).filter(move |p| p & d == 0)
 }
 
 /// Bits per select of a crossbar with `lanes` outputs.
@@ -117,11 +122,15 @@ pub fn image(unit: &Unit) -> Vec<ImageWord> {
     match &r.net {
         Network::Fixed { .. } => {}
         Network::Benes(b) => {
+            // One control bit per switch: the mask bits of the lower lanes, in lane order.
             for (i, &m) in b.masks().iter().enumerate() {
+                let value = lower_lanes(b.lanes(), b.distance(i))
+                    .enumerate()
+                    .fold(0u64, |v, (j, p)| v | (((m >> p) & 1) << j));
                 v.push(ImageWord {
                     name: format!("ctl{i}"),
-                    width: b.lanes(),
-                    value: m,
+                    width: b.lanes() / 2,
+                    value,
                 });
             }
         }
@@ -457,7 +466,11 @@ impl<'a> Emitter<'a> {
             spos = if k == 0 {
                 self.reg(1, "spos1", &ge)
             } else {
-                self.reg(k + 1, &format!("spos{}", k + 1), &format!("{{{spos}, {ge}}}"))
+                self.reg(
+                    k + 1,
+                    &format!("spos{}", k + 1),
+                    &format!("{{{spos}, {ge}}}"),
+                )
             };
             if k + 1 < sbits {
                 key = self.reg(63, &format!("key{}", k + 1), &key.clone());
@@ -484,18 +497,30 @@ impl<'a> Emitter<'a> {
     }
 
     /// Beneš columns `cols` on the word `w` (controls `ctl<i>`); returns the output word.
-    fn benes(&mut self, w: &str, b: &crate::routing::Benes, cols: core::ops::Range<usize>) -> String {
+    fn benes(
+        &mut self,
+        w: &str,
+        b: &crate::routing::Benes,
+        cols: core::ops::Range<usize>,
+    ) -> String {
         let lanes = b.lanes();
         let mut w = w.to_string();
         for i in cols {
             let d = b.distance(i);
-            let ctl = if lanes < 64 {
-                format!("{{{}'d0, ctl{i}}}", 64 - lanes)
-            } else {
-                format!("ctl{i}")
-            };
-            let t = self.wire(64, &format!("bt{i}"), &format!("((({w} >> {d}) ^ {w}) & {ctl})"));
-            w = self.wire(64, &format!("bw{i}"), &format!("{w} ^ {t} ^ ({t} << {d})"));
+            // The control of the switch at lower lane p sits at mask bit p (upper lanes 0).
+            let mut bits = vec!["1'b0".to_string(); 64];
+            for (j, p) in lower_lanes(lanes, d).enumerate() {
+                bits[p as usize] = format!("ctl{i}[{j}]");
+            }
+            bits.reverse();
+            let m = self.wire(64, &format!("bm{i}"), &format!("{{{}}}", bits.join(", ")));
+            let mh = self.wire(64, &format!("bh{i}"), &format!("{m} << {d}"));
+            // Each switch is a pair of 2:1 multiplexers: exchange lanes p and p + d when set.
+            w = self.wire(
+                64,
+                &format!("bw{i}"),
+                &format!("({w} & ~({m} | {mh})) | (({w} >> {d}) & {m}) | (({w} << {d}) & {mh})"),
+            );
         }
         w
     }
@@ -508,7 +533,11 @@ impl<'a> Emitter<'a> {
         for j in 0..lanes {
             let (wd, k) = (j / per, j % per);
             let lo = k * sb;
-            bits.push(self.wire(1, &format!("xb{j}"), &format!("{w}[sel{wd}[{}:{}]]", lo + sb - 1, lo)));
+            bits.push(self.wire(
+                1,
+                &format!("xb{j}"),
+                &format!("{w}[sel{wd}[{}:{}]]", lo + sb - 1, lo),
+            ));
         }
         bits.reverse();
         let pad = if lanes < 64 {
@@ -1007,7 +1036,13 @@ pub fn blocks(unit: &Unit) -> Vec<BlockSource> {
         let bank = unit.stages().iter().any(|s| s.op == Op::Bank);
         let name = if bank { "blk_bank" } else { "blk_search" };
         let b = *bits;
-        let inner = body(&mut |e| if bank { e.bank("d2", b) } else { e.search("d2", b) });
+        let inner = body(&mut |e| {
+            if bank {
+                e.bank("d2", b)
+            } else {
+                e.search("d2", b)
+            }
+        });
         v.push(BlockSource {
             module: name.into(),
             verilog: Emitter::module(
@@ -1028,7 +1063,7 @@ pub fn blocks(unit: &Unit) -> Vec<BlockSource> {
         Network::Benes(b) => {
             let mut ports = String::from("  input [63:0] w,\n");
             for i in 0..b.columns() {
-                ports.push_str(&format!("  input [{}:0] ctl{i},\n", b.lanes() - 1));
+                ports.push_str(&format!("  input [{}:0] ctl{i},\n", b.lanes() / 2 - 1));
             }
             ports.push_str("  output [63:0] y");
             let cols = b.columns();
