@@ -132,8 +132,9 @@ fn hardware_outputs(
             ..Default::default()
         };
         let t0 = Instant::now();
-        let rep = emc_hwsim::synth::synthesize(unit, &o)?;
-        println!("\n{rep}");
+        let rep = emc_hwsim::synth::synthesize(unit, &o);
+        let _ = std::fs::remove_dir_all(&o.work);
+        println!("\n{}", rep?);
         println!("(synthesis took {:.0} s)", t0.elapsed().as_secs_f64());
     }
     if a.synth && a.synth_compare {
