@@ -132,8 +132,7 @@ fn cancellation_probes() -> Vec<Aabb> {
 /// built-in scene, a subnormal scene, a far thin scene (deep cancellation) and a single point
 /// (zero extents, `D = 0`). All share the probes: hard cases, cancellations.
 fn frames_and_boxes() -> Vec<(Frame, Vec<Aabb>)> {
-    let (_, mut probes) = scene_and_vectors();
-    let mixed_boxes = probes.clone();
+    let (mixed, mut probes) = scene_and_vectors();
     probes.extend(cancellation_probes());
     let sub = subnormal_scene();
     // A far, thin scene: boxes from tiny t to 2^20 (per axis 2^20, 2^19, 2^21): the centres
@@ -191,8 +190,9 @@ fn frames_and_boxes() -> Vec<(Frame, Vec<Aabb>)> {
         .map(|b| far_box((b.min * (1.0 / 64.0)).to_array()))
         .collect();
     let point = vec![Aabb::point(Vec3::new(1.5, -2.0, 0.25)); 3];
-    let mut out = Vec::new();
-    for scene in [mixed_boxes, sub, canc, mid, thin, pyth, point] {
+    // The mixed scene's own frame first (its probes lie partly far outside it).
+    let mut out = vec![(mixed, probes.clone())];
+    for scene in [sub, canc, mid, thin, pyth, point] {
         let frame = Frame::new(&scene).unwrap();
         let mut b = scene;
         b.extend(probes.iter().copied());
