@@ -196,7 +196,7 @@ fn hw_c_program_reproduces_the_golden_vectors() {
     let so = libdir.join("libemc_hwsim.so");
     assert!(
         a.is_file() && so.is_file(),
-        "no libemc_hwsim.a/.so in {}",
+        "no libemc_hwsim.a/.so in {} (build them first: cargo build --release -p emc-hwsim)",
         libdir.display()
     );
     let work = Path::new(env!("CARGO_TARGET_TMPDIR")).join("ffi");
