@@ -7,20 +7,58 @@ use std::time::Duration;
 /// CPU time consumed by the calling thread (`CLOCK_THREAD_CPUTIME_ID`). Zero on a platform
 /// without a per-thread clock (then every CPU figure reads as unavailable, never as wall time).
 pub fn thread_cpu_time() -> Duration {
-    #[cfg(unix)]
+    clock(sys::CLOCK_THREAD_CPUTIME_ID).unwrap_or(Duration::ZERO)
+}
+
+/// The clocks of Linux's `clock_gettime`, declared here (the C library is linked by `std`
+/// anyway, so the lean library needs no `libc` crate). `timespec` is two `long`s on the 64-bit
+/// Linux targets; elsewhere there is no CPU clock and every CPU figure reads as unavailable.
+#[cfg(all(target_os = "linux", target_pointer_width = "64"))]
+mod sys {
+    use core::ffi::{c_int, c_long};
+
+    /// `struct timespec` of 64-bit Linux.
+    #[repr(C)]
+    pub struct Timespec {
+        pub tv_sec: c_long,
+        pub tv_nsec: c_long,
+    }
+
+    pub const CLOCK_PROCESS_CPUTIME_ID: c_int = 2;
+    pub const CLOCK_THREAD_CPUTIME_ID: c_int = 3;
+
+    unsafe extern "C" {
+        pub fn clock_gettime(clock: c_int, ts: *mut Timespec) -> c_int;
+    }
+}
+
+#[cfg(not(all(target_os = "linux", target_pointer_width = "64")))]
+mod sys {
+    pub const CLOCK_PROCESS_CPUTIME_ID: i32 = 2;
+    pub const CLOCK_THREAD_CPUTIME_ID: i32 = 3;
+}
+
+/// The time of `clock`; `None` where unavailable.
+fn clock(id: i32) -> Option<Duration> {
+    #[cfg(all(target_os = "linux", target_pointer_width = "64"))]
     {
-        let mut ts = libc::timespec {
+        let mut ts = sys::Timespec {
             tv_sec: 0,
             tv_nsec: 0,
         };
-        // SAFETY: `ts` is a valid, writable timespec and the clock id is a constant every unix
-        // target supports; the call only writes `ts`.
-        let rc = unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) };
-        if rc == 0 {
-            return Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32);
+        // SAFETY: `ts` is a valid, writable timespec of the target's layout and the clock ids
+        // are constants Linux has always supported; the call only writes `ts`.
+        let rc = unsafe { sys::clock_gettime(id, &mut ts) };
+        if rc == 0 && ts.tv_sec >= 0 && (0..1_000_000_000).contains(&ts.tv_nsec) {
+            return Some(Duration::new(ts.tv_sec as u64, ts.tv_nsec as u32));
         }
+        None
     }
-    Duration::ZERO
+    #[cfg(not(all(target_os = "linux", target_pointer_width = "64")))]
+    {
+        let _ = id;
+        None
+    }
 }
 
 /// CPU time consumed so far by every worker of a rayon pool (the caller waits in `install`
@@ -53,23 +91,10 @@ pub fn pool_thread_times(pool: &rayon::ThreadPool) -> Vec<(Duration, Duration)> 
     pool.broadcast(|_| (thread_cpu_time(), thread_run_queue_wait()))
 }
 
-/// CPU time (user + system) of this whole process, finished threads included (`getrusage`);
-/// `None` where unavailable.
+/// CPU time (user + system) of this whole process, finished threads included
+/// (`CLOCK_PROCESS_CPUTIME_ID`); `None` where unavailable.
 pub fn process_cpu_time() -> Option<Duration> {
-    #[cfg(unix)]
-    {
-        // SAFETY: `rusage` is plain old data; the all-zero value is valid.
-        let mut ru: libc::rusage = unsafe { std::mem::zeroed() };
-        // SAFETY: `ru` is a valid, writable rusage and RUSAGE_SELF is always supported.
-        let rc = unsafe { libc::getrusage(libc::RUSAGE_SELF, &mut ru) };
-        if rc == 0 {
-            let tv = |t: libc::timeval| {
-                Duration::new(t.tv_sec as u64, 0) + Duration::from_micros(t.tv_usec as u64)
-            };
-            return Some(tv(ru.ru_utime) + tv(ru.ru_stime));
-        }
-    }
-    None
+    clock(sys::CLOCK_PROCESS_CPUTIME_ID)
 }
 
 /// Median of a list (the mean of the middle two for an even count); NaN when empty.

@@ -2,6 +2,19 @@
 //! `madvise(MADV_HUGEPAGE)` over a fresh allocation turns some thousand 4 KiB page faults per
 //! 4 MiB into two 2 MiB ones. Linux only; elsewhere (or when the kernel refuses) a no-op.
 
+#[cfg(target_os = "linux")]
+const MADV_HUGEPAGE: core::ffi::c_int = 14;
+
+// Declared here (the C library is linked by `std` anyway): the lean library needs no `libc`.
+#[cfg(target_os = "linux")]
+unsafe extern "C" {
+    fn madvise(
+        addr: *mut core::ffi::c_void,
+        len: usize,
+        advice: core::ffi::c_int,
+    ) -> core::ffi::c_int;
+}
+
 /// Ask for huge pages over the unused capacity of `v` (call before writing to it).
 pub fn advise<T>(v: &Vec<T>) {
     #[cfg(target_os = "linux")]
@@ -19,7 +32,7 @@ pub fn advise<T>(v: &Vec<T>) {
             // lies inside the allocation of `v` (rounded inwards to whole huge pages); it
             // neither reads nor writes the memory, and a refusal leaves it as it was.
             unsafe {
-                libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_HUGEPAGE);
+                madvise(lo as *mut core::ffi::c_void, hi - lo, MADV_HUGEPAGE);
             }
         }
     }

@@ -7,12 +7,20 @@ pub mod aabbs;
 pub mod buffers;
 pub mod build;
 pub mod bvh;
+#[cfg(feature = "cli")]
+#[doc(hidden)]
 pub mod cli;
 pub mod cputime;
 pub mod encode;
+#[cfg(feature = "fuzzing")]
+#[doc(hidden)]
 pub mod fuzzing;
 pub mod hugepage;
+#[cfg(feature = "cli")]
+#[doc(hidden)]
 pub mod paper;
+#[cfg(feature = "cli")]
+#[doc(hidden)]
 pub mod peers;
 pub mod scene;
 pub mod sort;

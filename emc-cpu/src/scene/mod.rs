@@ -1,9 +1,11 @@
 //! Scenes: the triangle soups that every builder, encoder and tracer of emc-cpu consumes.
-//! A [`Scene`] comes from an OBJ file ([`obj`]), a zstd-compressed OBJ, a shared scene named by
-//! its stem, or a deterministic procedural generator ([`builtin`]); [`load`] picks by the spec.
+//! A [`Scene`] comes from an OBJ file (the `obj` module, feature `obj`), a zstd-compressed
+//! OBJ, a shared scene named by its stem, or a deterministic procedural generator
+//! ([`builtin`], always there); [`load`] picks by the spec.
 #![forbid(unsafe_code)]
 
 pub mod builtin;
+#[cfg(feature = "obj")]
 pub mod obj;
 
 use std::path::{Path, PathBuf};
@@ -67,12 +69,19 @@ pub enum SceneError {
         message: String,
     },
     /// `tobj` refused the file for a reason the line check did not see.
+    #[cfg(feature = "obj")]
     #[error("{path}: OBJ parser error: {source}")]
     Obj {
         /// The file being parsed.
         path: PathBuf,
         /// The `tobj` error.
         source: tobj::LoadError,
+    },
+    /// A scene file was asked for, but this build reads none (emc-cpu without `obj`).
+    #[error("{path}: reading OBJ files needs emc-cpu's `obj` feature")]
+    NoObjSupport {
+        /// The file asked for.
+        path: PathBuf,
     },
     /// The file holds no triangle at all (empty, only vertices, only comments...).
     #[error("{path}: no triangles in the scene")]
@@ -220,16 +229,26 @@ pub fn load(spec: &str) -> Result<Scene, SceneError> {
 ///   those extensions);
 /// - a bare shared-scene name such as `pbrt-bathroom`, looked up by [`shared_scene_path`].
 pub fn load_with(spec: &str, opts: &SceneOptions) -> Result<Scene, SceneError> {
+    #[cfg(feature = "obj")]
+    fn load_file(path: &Path) -> Result<Scene, SceneError> {
+        obj::load_obj_file(path)
+    }
+    #[cfg(not(feature = "obj"))]
+    fn load_file(path: &Path) -> Result<Scene, SceneError> {
+        Err(SceneError::NoObjSupport {
+            path: path.to_path_buf(),
+        })
+    }
     if let Some(name) = spec.strip_prefix("builtin:") {
         return builtin::generate(name, opts);
     }
     let path = Path::new(spec);
     let looks_like_file = spec.ends_with(".obj") || spec.ends_with(".zst") || spec.contains('/');
     if path.exists() || looks_like_file {
-        return obj::load_obj_file(path);
+        return load_file(path);
     }
     match shared_scene_path(spec) {
-        Some(p) => obj::load_obj_file(&p),
+        Some(p) => load_file(&p),
         None => Err(SceneError::UnknownScene {
             name: spec.to_string(),
             where_: match shared_scenes_dir() {

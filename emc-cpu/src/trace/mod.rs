@@ -4,6 +4,7 @@
 
 pub mod api;
 pub mod cover;
+#[cfg(feature = "image")]
 pub mod image;
 pub mod intersect;
 pub mod traverse;
