@@ -323,7 +323,29 @@ fn bad_meshes_and_options_are_refused() {
             width: Some(6),
             ..o
         };
-        assert!(Accel::build(&v, &[[0, 1, 2]], &w).is_err());
+        assert!(matches!(
+            Accel::build(&v, &[[0, 1, 2]], &w),
+            Err(TraceError::Width(6))
+        ));
+        let t = BuildOptions {
+            threads: Some(0),
+            ..o
+        };
+        assert!(matches!(
+            Accel::build(&v, &[[0, 1, 2]], &t),
+            Err(TraceError::ZeroThreads)
+        ));
+    }
+    // The BVH2 presets (the fast one has no leaf-size option of its own).
+    for preset in [Preset::Balanced, Preset::Quality] {
+        let l = BuildOptions {
+            leaf_size: Some(0),
+            ..BuildOptions::preset(preset)
+        };
+        assert!(matches!(
+            Accel::build(&v, &[[0, 1, 2]], &l),
+            Err(TraceError::ZeroLeafSize)
+        ));
     }
 }
 

@@ -25,3 +25,7 @@ pub mod peers;
 pub mod scene;
 pub mod sort;
 pub mod trace;
+
+pub use build::Builder;
+pub use scene::Scene;
+pub use trace::{Accel, BuildOptions, Hit, Preset, Ray, TraceError};

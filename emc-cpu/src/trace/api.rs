@@ -143,21 +143,17 @@ impl Accel {
     ) -> Result<Accel, TraceError> {
         let width = opts.width.unwrap_or_else(default_width);
         if width != WIDTH && width != WIDTH8 {
-            return Err(TraceError::Build(format!(
-                "the tree width must be 4 or 8, not {width}"
-            )));
+            return Err(TraceError::Width(width));
         }
         if opts.threads == Some(0) {
-            return Err(TraceError::Build(
-                "the thread count must be at least 1".into(),
-            ));
+            return Err(TraceError::ZeroThreads);
         }
         let pool = match opts.threads {
             Some(n) => Some(Arc::new(
                 rayon::ThreadPoolBuilder::new()
                     .num_threads(n)
                     .build()
-                    .map_err(|e| TraceError::ThreadPool(e.to_string()))?,
+                    .map_err(TraceError::ThreadPool)?,
             )),
             None => None,
         };
@@ -402,14 +398,10 @@ pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceE
     let (builder, layout, restructure) = opts.resolve();
     let max_leaf = opts.leaf_size.unwrap_or(DEFAULT_LEAF_SIZE);
     if max_leaf == 0 {
-        return Err(TraceError::Build(
-            "the maximum leaf size must be at least 1".into(),
-        ));
+        return Err(TraceError::ZeroLeafSize);
     }
     if opts.threads == Some(0) {
-        return Err(TraceError::Build(
-            "the thread count must be at least 1".into(),
-        ));
+        return Err(TraceError::ZeroThreads);
     }
     let collapse = CollapseParams {
         max_leaf,
@@ -426,13 +418,13 @@ pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceE
             collapse
         },
     };
-    let out = build_aabbs_inline(aabbs, &bopts).map_err(|e| TraceError::Build(e.to_string()))?;
+    let out = build_aabbs_inline(aabbs, &bopts).map_err(TraceError::Build)?;
     if !restructure {
         return Ok(out.bvh);
     }
     let mut bvh = out.bvh;
     restructure_atr(&mut bvh, &out.aabbs, &AtrConfig::default())
-        .map_err(|e| TraceError::Build(e.to_string()))?;
+        .map_err(TraceError::Restructure)?;
     // Without a leaf size of its own, the restructured tree keeps one triangle per leaf: the
     // wide collapse's cover DP chooses the leaves itself (up to eight triangles). An SAH leaf
     // collapse before it was measured to change nothing the DP chooses (same wide SAH and work

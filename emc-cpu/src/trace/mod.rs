@@ -53,9 +53,27 @@ pub enum TraceError {
         /// [`wide::MAX_DEPTH`].
         max: usize,
     },
-    /// The BVH build failed.
+    /// The tree width of [`BuildOptions`] is neither 4 nor 8.
+    #[error("the tree width must be 4 or 8, not {0}")]
+    Width(usize),
+    /// [`BuildOptions`] asks for zero threads.
+    #[error("the thread count must be at least 1")]
+    ZeroThreads,
+    /// [`BuildOptions`] asks for leaves of zero triangles.
+    #[error("the maximum leaf size must be at least 1")]
+    ZeroLeafSize,
+    /// The codes could not be made (scene frame or encoder).
+    #[error("encoding the triangles failed: {0}")]
+    Encode(#[source] emc_core::Error),
+    /// The radix sort refused its input.
+    #[error("sorting the codes failed: {0}")]
+    Sort(#[source] crate::sort::SortError),
+    /// The BVH2 pipeline (LBVH or binned SAH) refused its input.
     #[error("BVH build failed: {0}")]
-    Build(String),
+    Build(#[source] crate::build::BuildError),
+    /// The treelet restructuring refused its input.
+    #[error("treelet restructuring failed: {0}")]
+    Restructure(#[source] crate::bvh::atrbvh::AtrError),
     /// [`Accel::rebuild`] got a different number of vertices than the build.
     #[error("rebuild got {given} vertices, but the mesh was built with {expected}")]
     VertexCount {
@@ -66,5 +84,5 @@ pub enum TraceError {
     },
     /// A thread pool could not be created.
     #[error("cannot create a thread pool: {0}")]
-    ThreadPool(String),
+    ThreadPool(#[source] rayon::ThreadPoolBuildError),
 }

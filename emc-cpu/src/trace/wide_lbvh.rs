@@ -773,7 +773,7 @@ pub fn build_fast<const W: usize>(
             emc_core::Error::NonFinite(i) | emc_core::Error::InvertedBox(i) => {
                 TraceError::NonFinite(i)
             }
-            e => TraceError::Build(e.to_string()),
+            e => TraceError::Encode(e),
         })?;
     let p = bounds.prim;
     let max_abs = p.min.abs().max_element().max(p.max.abs().max_element());
@@ -781,17 +781,17 @@ pub fn build_fast<const W: usize>(
     let t1 = Instant::now();
     times.aabb = (t1 - t0).as_secs_f64() * 1e3;
     let frame = emc_core::Frame::from_bounds(bounds, emc_core::Normalization::CentroidBox)
-        .map_err(|e| TraceError::Build(e.to_string()))?;
+        .map_err(TraceError::Encode)?;
     let enc = emc_core::Encoder::new(layout, &frame);
     let s = &mut *scratch;
     let tree = if enc.layout().fits_u32() {
         crate::buffers::resized(&mut s.codes32, n, 0);
         crate::encode::encode_parallel_u32(&enc, &s.aabbs, &mut s.codes32)
-            .map_err(|e| TraceError::Build(e.to_string()))?;
+            .map_err(TraceError::Encode)?;
         let t2 = Instant::now();
         times.encode = (t2 - t1).as_secs_f64() * 1e3;
         crate::sort::sort_with_ids(&mut s.codes32, &mut s.ids, &mut s.kbuf32, &mut s.vbuf)
-            .map_err(|e| TraceError::Build(e.to_string()))?;
+            .map_err(TraceError::Sort)?;
         let t3 = Instant::now();
         times.sort = (t3 - t2).as_secs_f64() * 1e3;
         let inp = Inputs {
@@ -814,11 +814,11 @@ pub fn build_fast<const W: usize>(
     } else {
         crate::buffers::resized(&mut s.codes64, n, 0);
         crate::encode::encode_parallel(&enc, &s.aabbs, &mut s.codes64)
-            .map_err(|e| TraceError::Build(e.to_string()))?;
+            .map_err(TraceError::Encode)?;
         let t2 = Instant::now();
         times.encode = (t2 - t1).as_secs_f64() * 1e3;
         crate::sort::sort_with_ids(&mut s.codes64, &mut s.ids, &mut s.kbuf64, &mut s.vbuf)
-            .map_err(|e| TraceError::Build(e.to_string()))?;
+            .map_err(TraceError::Sort)?;
         let t3 = Instant::now();
         times.sort = (t3 - t2).as_secs_f64() * 1e3;
         let inp = Inputs {
