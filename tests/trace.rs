@@ -539,7 +539,7 @@ fn api_rejects_bad_meshes() {
             ..o
         },
         BuildOptions {
-            threads: Some(0),
+            width: Some(3),
             ..o
         },
     ] {
@@ -611,17 +611,14 @@ fn batch_api_equals_single_rays() {
     let tris = triangles(&s);
     let rays = test_rays(&tris, 4000, 9);
     for preset in [Preset::Fast, Preset::Balanced, Preset::Quality] {
-        let a = Accel::build(
-            &s.vertices,
-            &s.indices,
-            &BuildOptions {
-                threads: Some(2),
-                ..BuildOptions::preset(preset)
-            },
-        )
-        .unwrap();
-        let hits = a.intersect_batch(&rays);
-        let occ = a.occluded_batch(&rays);
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(2)
+            .build()
+            .unwrap();
+        let a = pool
+            .install(|| Accel::build(&s.vertices, &s.indices, &BuildOptions::preset(preset)))
+            .unwrap();
+        let (hits, occ) = pool.install(|| (a.intersect_batch(&rays), a.occluded_batch(&rays)));
         for (i, r) in rays.iter().enumerate() {
             assert_eq!(hits[i], a.intersect(r));
             assert_eq!(occ[i], a.occluded(r));

@@ -401,10 +401,7 @@ fn build<'a>(
     let pool = &ctx.pool;
     match c {
         Config::Emc(p) => {
-            let opts = BuildOptions {
-                threads: None,
-                ..BuildOptions::preset(p)
-            };
+            let opts = BuildOptions::preset(p);
             let (mut pc, mut pw) = (Vec::new(), Vec::new());
             let (a, cold, warm) = time_builds(
                 || {

@@ -160,7 +160,6 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         layout,
         builder,
         restructure,
-        threads: Some(args.threads),
         leaf_size: args.leaf_size,
         width: args.width,
     };
@@ -171,7 +170,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         }
     }
     let t0 = Instant::now();
-    let accel = Accel::build(&scene.vertices, &scene.indices, &opts)?;
+    let accel = pool.install(|| Accel::build(&scene.vertices, &scene.indices, &opts))?;
     let build_ms = t0.elapsed().as_secs_f64() * 1e3;
     let w = accel.wide_bvh();
     let tris = &accel.triangles()[..];

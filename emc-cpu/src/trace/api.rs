@@ -26,9 +26,10 @@
 //! assert!(hits[0].is_some() && hits[1].is_none());
 //! # Ok::<(), emc_cpu::trace::TraceError>(())
 //! ```
+//!
+//! Builds, rebuilds and batches run in the caller's rayon pool: an `Accel` owns no threads.
+//! For a given pool, call them inside `pool.install(|| ...)`.
 #![forbid(unsafe_code)]
-
-use std::sync::Arc;
 
 use glam::Vec3;
 use rayon::prelude::*;
@@ -70,8 +71,6 @@ pub struct BuildOptions {
     pub builder: Option<Builder>,
     /// Run treelet restructuring (`atrbvh`) on the binary tree before the leaf collapse.
     pub restructure: Option<bool>,
-    /// Threads for building and batch tracing (`None`: as many as rayon's current pool).
-    pub threads: Option<usize>,
     /// Largest leaf of the SAH leaf collapse of the BVH2 before the wide collapse (1 keeps one
     /// triangle per leaf; default 4, except after treelet restructuring, where `None` leaves
     /// the leaves to the wide collapse). The wide tree's cover DP merges leaves up to eight
@@ -129,7 +128,6 @@ pub struct Accel {
     scratch4: FastScratch<WIDTH>,
     scratch8: FastScratch<WIDTH8>,
     phases: FastTimes,
-    pool: Option<Arc<rayon::ThreadPool>>,
 }
 
 impl Accel {
@@ -145,18 +143,6 @@ impl Accel {
         if width != WIDTH && width != WIDTH8 {
             return Err(TraceError::Width(width));
         }
-        if opts.threads == Some(0) {
-            return Err(TraceError::ZeroThreads);
-        }
-        let pool = match opts.threads {
-            Some(n) => Some(Arc::new(
-                rayon::ThreadPoolBuilder::new()
-                    .num_threads(n)
-                    .build()
-                    .map_err(TraceError::ThreadPool)?,
-            )),
-            None => None,
-        };
         let mut a = Accel {
             bvh: WideBvh::empty(),
             vertices: Vec::new(),
@@ -166,7 +152,6 @@ impl Accel {
             scratch4: FastScratch::default(),
             scratch8: FastScratch::default(),
             phases: FastTimes::default(),
-            pool,
         };
         a.build_over(vertices, indices)?;
         a.vertices = vertices.to_vec();
@@ -226,13 +211,12 @@ impl Accel {
         let fast = matches!(builder, Builder::Lbvh | Builder::LbvhApetrei)
             && !restructure
             && self.opts.leaf_size.is_none_or(|l| l == DEFAULT_LEAF_SIZE);
-        let pool = self.pool.clone();
         let opts = self.opts;
         let bvh = &mut self.bvh;
         let (scratch4, scratch8) = (&mut self.scratch4, &mut self.scratch8);
         let phases = &mut self.phases;
         *phases = FastTimes::default();
-        let run = move || -> Result<(), TraceError> {
+        let run = || -> Result<(), TraceError> {
             if fast {
                 let times = phases;
                 return if width == WIDTH8 {
@@ -274,10 +258,7 @@ impl Accel {
             *bvh = WideBvh::from_own_bvh2(&bvh2, &tris, width)?;
             Ok(())
         };
-        match pool {
-            Some(p) => p.install(run),
-            None => run(),
-        }
+        run()
     }
 
     /// Wrap a BVH2 from any builder (validated against `tris`, then collapsed to the default
@@ -295,7 +276,6 @@ impl Accel {
             scratch4: FastScratch::default(),
             scratch8: FastScratch::default(),
             phases: FastTimes::default(),
-            pool: None,
         })
     }
 
@@ -314,12 +294,12 @@ impl Accel {
 
     /// Closest hits of many rays, in parallel; one answer per ray, in order.
     pub fn intersect_batch(&self, rays: &[Ray]) -> Vec<Option<Hit>> {
-        self.run(|| rays.par_iter().map(|r| self.intersect(r)).collect())
+        rays.par_iter().map(|r| self.intersect(r)).collect()
     }
 
     /// Occlusion of many rays, in parallel; one answer per ray, in order.
     pub fn occluded_batch(&self, rays: &[Ray]) -> Vec<bool> {
-        self.run(|| rays.par_iter().map(|r| self.occluded(r)).collect())
+        rays.par_iter().map(|r| self.occluded(r)).collect()
     }
 
     /// Triangle `id`'s corners.
@@ -355,13 +335,6 @@ impl Accel {
     /// The node test (and so the tree width) queries use.
     pub fn node_test(&self) -> NodeTest {
         self.test
-    }
-
-    fn run<T: Send>(&self, f: impl FnOnce() -> T + Send) -> T {
-        match &self.pool {
-            Some(p) => p.install(f),
-            None => f(),
-        }
     }
 }
 
@@ -400,14 +373,11 @@ pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceE
     if max_leaf == 0 {
         return Err(TraceError::ZeroLeafSize);
     }
-    if opts.threads == Some(0) {
-        return Err(TraceError::ZeroThreads);
-    }
     let collapse = CollapseParams {
         max_leaf,
         ..CollapseParams::default()
     };
-    let threads = opts.threads.unwrap_or_else(rayon::current_num_threads);
+    let threads = rayon::current_num_threads();
     let bopts = crate::build::BuildOptions {
         layout,
         builder,

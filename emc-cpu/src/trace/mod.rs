@@ -56,9 +56,6 @@ pub enum TraceError {
     /// The tree width of [`BuildOptions`] is neither 4 nor 8.
     #[error("the tree width must be 4 or 8, not {0}")]
     Width(usize),
-    /// [`BuildOptions`] asks for zero threads.
-    #[error("the thread count must be at least 1")]
-    ZeroThreads,
     /// [`BuildOptions`] asks for leaves of zero triangles.
     #[error("the maximum leaf size must be at least 1")]
     ZeroLeafSize,
@@ -82,7 +79,4 @@ pub enum TraceError {
         /// Vertices of the build.
         expected: usize,
     },
-    /// A thread pool could not be created.
-    #[error("cannot create a thread pool: {0}")]
-    ThreadPool(#[source] rayon::ThreadPoolBuildError),
 }
