@@ -118,8 +118,25 @@ fn fixed_layouts_use_wires_and_programmable_ones_a_network() {
     let m = Unit::for_spec(&LayoutSpec::Morton63, &frame, &d).unwrap();
     assert!(matches!(
         m.registers().net,
-        emc_hwsim::Network::Fixed { per_axis: 21 }
+        emc_hwsim::Network::Fixed {
+            morton: Some(21),
+            ..
+        }
     ));
+    // A custom pattern equal to a regular one is wired too; an irregular one is routed.
+    for (name, wired) in [
+        ("custom:xyzs", true),
+        ("custom:zyxzyxzyx", true),
+        ("custom:xxyszzxxyz", false),
+    ] {
+        let spec: LayoutSpec = name.parse().unwrap();
+        let u = Unit::for_spec(&spec, &frame, &d).unwrap();
+        assert_eq!(
+            matches!(u.registers().net, emc_hwsim::Network::Fixed { .. }),
+            wired,
+            "{name}"
+        );
+    }
     assert!(matches!(m.registers().size, SizeUnit::None));
     assert!(m
         .stages()
@@ -609,4 +626,210 @@ fn stalls_are_attributed_to_their_cause_and_setup_is_costed() {
         ),
         (0, 0, 0)
     );
+}
+
+/// Boxes spread over the axes in `axes` (the others constant) across `[o, o + len]`, with the
+/// two extreme centres present, small boxes and a few boxes outside the frame as probes.
+fn swept_scene(axes: [bool; 3], o: f32, len: f32, seed: u64) -> (Vec<Aabb>, Vec<Aabb>) {
+    swept_scene_ratio(axes, o, [len; 3], seed)
+}
+
+/// [`swept_scene`] with a length per axis.
+fn swept_scene_ratio(axes: [bool; 3], o: f32, lens: [f32; 3], seed: u64) -> (Vec<Aabb>, Vec<Aabb>) {
+    let len = lens[0].max(lens[1]).max(lens[2]);
+    let mut s = seed | 1;
+    let mut r = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 40) as f32 / (1u64 << 24) as f32
+    };
+    let at = |t: [f32; 3]| {
+        Vec3::new(
+            if axes[0] {
+                (o + len * t[0]) * (lens[0] / len)
+            } else {
+                0.25
+            },
+            if axes[1] {
+                (o + len * t[1]) * (lens[1] / len)
+            } else {
+                -3.0
+            },
+            if axes[2] {
+                (o + len * t[2]) * (lens[2] / len)
+            } else {
+                7.5
+            },
+        )
+    };
+    let mut boxes = vec![Aabb::point(at([0.0; 3])), Aabb::point(at([1.0; 3]))];
+    for _ in 0..150 {
+        let p = at([r(), r(), r()]);
+        let e = Vec3::new(
+            if axes[0] {
+                lens[0] * r() * r() * 0.01
+            } else {
+                0.0
+            },
+            if axes[1] {
+                lens[1] * r() * r() * 0.01
+            } else {
+                0.0
+            },
+            if axes[2] {
+                lens[2] * r() * r() * 0.01
+            } else {
+                0.0
+            },
+        );
+        boxes.push(Aabb::new(p, p + e));
+    }
+    let probes = (0..20)
+        .map(|_| {
+            let p = at([r() * 3.0 - 1.0, r() * 3.0 - 1.0, r() * 3.0 - 1.0]);
+            Aabb::new(p, p + Vec3::splat(len * r()))
+        })
+        .collect();
+    (boxes, probes)
+}
+
+/// Issue 14 §0: every layout on one-, two- and three-axis scenes whose extents sweep decades
+/// (so adaptive layouts give one axis 53–64 bits): schedule, position scales and thresholds
+/// come from the unit's firmware, and every code equals emc-core's.
+#[test]
+fn swept_extents_on_one_two_three_axes_are_bit_exact() {
+    let axis_sets = [
+        [false, true, false],
+        [true, false, false],
+        [false, false, true],
+        [true, true, false],
+        [false, true, true],
+        [true, true, true],
+    ];
+    let mut specs = all_specs();
+    specs.push(
+        "custom:yyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyyxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxxx"
+            .parse()
+            .unwrap(),
+    );
+    let mut widest = [false; 65];
+    let mut seed = 1;
+    for axes in axis_sets {
+        for (exp, ratio) in (-30..=30)
+            .step_by(6)
+            .flat_map(|e| [(e, 0), (e, 48), (e, 51)])
+        {
+            for o in [0.1f32, -7.0, 1e3] {
+                let len = 10f32.powi(exp) * 0.49;
+                // The last active axis shorter by 2^-ratio: two-axis layouts then give the
+                // long axis 53 and more bits.
+                let mut lens = [len; 3];
+                let last = (0..3).rev().find(|&a| axes[a]).unwrap();
+                lens[last] = len * 2f32.powi(-ratio);
+                seed += 1;
+                let (boxes, probes) = swept_scene_ratio(axes, o * 10f32.powi(exp), lens, seed);
+                let frame = Frame::new(&boxes).unwrap();
+                let all: Vec<Aabb> = boxes.iter().chain(&probes).copied().collect();
+                for spec in &specs {
+                    let enc = Encoder::new(spec, &frame);
+                    let opts = if seed % 2 == 0 {
+                        UnitOptions::default()
+                    } else {
+                        UnitOptions {
+                            routing: RoutingChoice::Crossbar,
+                            size_search: SizeSearch::Bank,
+                            ..UnitOptions::default()
+                        }
+                    };
+                    let unit = Unit::for_spec(spec, &frame, &opts).unwrap();
+                    assert_eq!(
+                        unit.layout().channels(),
+                        enc.layout().channels(),
+                        "firmware schedule of {spec} on {:?}",
+                        frame.extent()
+                    );
+                    for b in unit.layout().bit_counts() {
+                        widest[b as usize] = true;
+                    }
+                    let bad = mismatches(&unit, &enc, &all);
+                    assert_eq!(bad, 0, "{spec} axes {axes:?} len {len:e} o {o}");
+                    for b in all.iter().take(40) {
+                        assert_eq!(unit.code(b), enc.encode(b), "{spec} {b:?}");
+                    }
+                }
+            }
+        }
+    }
+    for n in [53, 58, 64] {
+        assert!(
+            widest[n],
+            "the sweep never gave a channel {n} bits: {:?}",
+            (0..65).filter(|&i| widest[i]).collect::<Vec<_>>()
+        );
+    }
+}
+
+/// Issue 14 §0, the reported case: two triangles along y from 0.1 to 0.59 give `emc64-var`
+/// the layout 0/58/0/6; the unit's max face must reach `2^58 − 1` like emc-core's.
+#[test]
+fn a_58_bit_channel_reaches_its_maximum() {
+    let tri = |y0: f32, y1: f32| {
+        Aabb::from_triangle(
+            Vec3::new(1.0, y0, 2.0),
+            Vec3::new(1.0, y1, 2.0),
+            Vec3::new(1.0, y0, 2.0),
+        )
+    };
+    let boxes = [tri(0.1, 0.1), tri(0.59, 0.59), tri(0.2, 0.3)];
+    let frame = Frame::new(&boxes).unwrap();
+    let unit = Unit::for_spec(&LayoutSpec::Emc64Var, &frame, &UnitOptions::default()).unwrap();
+    assert_eq!(unit.layout().bit_counts(), [0, 58, 0, 6]);
+    let enc = Encoder::new(&LayoutSpec::Emc64Var, &frame);
+    for b in &boxes {
+        assert_eq!(unit.code(b), enc.encode(b));
+    }
+    assert_eq!(enc.decode(unit.code(&boxes[1]))[1], (1u64 << 58) - 1);
+}
+
+/// Issue 14 §0: the size thresholds are the firmware's own bisection on the unit's formula
+/// path; they equal emc-core's table (derived there by emc-core's own formula) bit for bit.
+#[test]
+fn size_thresholds_are_derived_by_the_unit_and_equal_emc_core() {
+    let mut checked = 0;
+    for diag_exp in [-35, -12, -3, 0, 1, 7, 20, 36] {
+        for axes in [
+            [true, true, true],
+            [false, true, false],
+            [true, false, true],
+        ] {
+            let len = 10f32.powi(diag_exp);
+            let (boxes, _) = swept_scene(axes, 0.3 * len, len, diag_exp as u64 + 99);
+            let frame = Frame::new(&boxes).unwrap();
+            for spec in all_specs() {
+                let layout = spec.resolve(frame.extent());
+                let q = Quantizer::new(&layout, &frame);
+                let unit = Unit::new(&layout, &frame, &UnitOptions::default()).unwrap();
+                match (&unit.registers().size, q.thresholds()) {
+                    (SizeUnit::Thresholds { keys, .. }, Some(t)) => {
+                        assert_eq!(keys.len(), t.len());
+                        for k in 1..t.len() {
+                            assert_eq!(
+                                keys[k],
+                                t[k].to_bits(),
+                                "{spec} k={k} D={}",
+                                frame.diagonal()
+                            );
+                        }
+                        checked += 1;
+                    }
+                    (SizeUnit::Thresholds { .. }, None) | (_, Some(_)) => {
+                        panic!("{spec}: unit and emc-core disagree on the size path")
+                    }
+                    _ => {}
+                }
+            }
+        }
+    }
+    assert!(checked > 50, "{checked}");
 }

@@ -1,10 +1,10 @@
 //! Large build buffers: the pipeline allocates ~100 bytes per primitive, and the page faults of
 //! fresh memory cost about a phase, so big buffers are reused when they are large enough (kept
 //! as they are when the caller overwrites every element) and filled in parallel (first touch on
-//! every core) when they are not. Transparent huge pages (`madvise(MADV_HUGEPAGE)` on fresh
-//! buffers) are not used: on a first San Miguel build they cut the AABB phase from ~115 to
-//! ~50 ms of thread-CPU, but the kernel's compaction at fault time made other phases erratic
-//! (a sort phase doubled).
+//! every core) when they are not. Fresh buffers of 4 MiB or more ask for transparent huge pages
+//! before their first touch (`hugepage::advise`): a first bathroom build with the fast preset
+//! went from about 62 to 40 ms of thread-CPU. (An earlier attempt on every buffer of the BVH2
+//! pipeline saw San Miguel's sort phase double once; watch for compaction stalls.)
 #![forbid(unsafe_code)]
 
 use rayon::prelude::*;
@@ -12,7 +12,11 @@ use rayon::prelude::*;
 /// A vector of `n` copies of `x` (`vec![x; n]`: zeroed allocator pages, no writing pass, when
 /// `x` is a zero integer).
 pub fn filled<T: Copy + Send + Sync>(n: usize, x: T) -> Vec<T> {
-    vec![x; n]
+    let v = vec![x; n];
+    // A zero fill comes as untouched zero pages: back them by huge pages before the caller
+    // writes (for any other value the pages are already in, and the hint changes nothing).
+    crate::hugepage::advise(&v);
+    v
 }
 
 /// Make `v` hold `n` elements whose values do not matter (the caller overwrites every one):
@@ -44,6 +48,7 @@ fn resize_keeping<T: Copy>(v: &mut Vec<T>, n: usize, x: T, fresh: impl FnOnce(us
 /// A vector of `n` values made by `f`, filled in parallel.
 pub fn from_fn<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
     let mut v: Vec<T> = Vec::with_capacity(n);
+    crate::hugepage::advise(&v);
     v.par_extend((0..n).into_par_iter().with_min_len(1 << 14).map(f));
     v
 }

@@ -12,6 +12,7 @@ pub mod cli;
 pub mod cputime;
 pub mod encode;
 pub mod fuzzing;
+pub mod hugepage;
 pub mod paper;
 pub mod peers;
 pub mod scene;

@@ -18,6 +18,7 @@
 //!   used): 64-lane Beneš network 9,152 T (352 switches), 64×64 crossbar 49,192 T, 31-bit
 //!   comparator 904 T, 6-step search over 63 31-bit thresholds 26.8k T, 63-comparator bank 61k T.
 //! - OpenHW CV32E40P FPU documentation: iterative fp32 div/sqrt ≈7 kGE, 5–8 cycles.
+#![forbid(unsafe_code)]
 
 use core::fmt;
 
@@ -25,8 +26,41 @@ use crate::datapath::{Network, SizeSearch, SizeUnit, Unit};
 
 /// Node the model is stated at.
 pub const NODE_NM: u32 = 40;
-/// Area factor from 40 nm to 28 nm (quadratic scaling).
+/// Area factor from 40 nm to 28 nm ([`area_at`]).
 pub const TO_28NM: f64 = (28.0 / 40.0) * (28.0 / 40.0);
+
+/// The node-scaling rule, one for every figure of the model (hardware-anchors.md §1.2 and
+/// §5.1): area scales with the square of the feature size (MergeTree's convention for its
+/// cross-node table), gate delay linearly with it (constant-field scaling; the anchors' fp
+/// units meet 1 ns at 40 nm). `area_at(a, n)` is a 40 nm area at `n` nm.
+pub fn area_at(um2_at_40nm: f64, nm: f64) -> f64 {
+    um2_at_40nm * (nm / NODE_NM as f64) * (nm / NODE_NM as f64)
+}
+
+/// A 40 nm delay at `n` nm ([`area_at`] states the rule).
+pub fn delay_at(ns_at_40nm: f64, nm: f64) -> f64 {
+    ns_at_40nm * nm / NODE_NM as f64
+}
+
+/// Area of the `S`-step binary threshold search or of the comparator bank on 63-bit keys,
+/// µm² at 40 nm \[D\]: the yosys estimates (26.8k T for 6 steps over 63 31-bit thresholds,
+/// 61k T for the 63-comparator bank) scaled to 63-bit keys and `2^S − 1` thresholds.
+pub fn threshold_search_um2(bits: u32, bank: bool) -> f64 {
+    let t = ((1u32 << bits) - 1) as f64;
+    let tr = if bank { 61_000.0 } else { 26_800.0 };
+    tr * (63.0 / 31.0) * t / 63.0 * UM2_PER_T
+}
+
+/// Area of a Beneš network with `control_bits` switches, µm² at 40 nm \[D\] (yosys: 9,152 T
+/// per 352 switches, 26 T each).
+pub fn benes_um2(control_bits: usize) -> f64 {
+    control_bits as f64 * 26.0 * UM2_PER_T
+}
+
+/// Area of an `n × n` crossbar, µm² at 40 nm \[D\] (yosys: 49,192 T per 64×64, 12 T a point).
+pub fn crossbar_um2(n: u32) -> f64 {
+    (n * n) as f64 * 12.0 * UM2_PER_T
+}
 
 /// fp64 adder/subtractor, µm² (Aladdin).
 pub const FP64_ADD_UM2: f64 = 9_885.0;
@@ -211,18 +245,11 @@ pub fn cost(unit: &Unit) -> Cost {
         SizeUnit::None => {}
         SizeUnit::Thresholds { bits, .. } => {
             let t = ((1u32 << bits) - 1) as f64;
-            let width = 63.0 / 31.0;
-            let (name, tr) = match o.size_search {
-                SizeSearch::Binary => (
-                    format!("{bits}-step threshold search"),
-                    26_800.0 * width * t / 63.0,
-                ),
-                SizeSearch::Bank => (
-                    format!("{t}-comparator bank + popcount"),
-                    61_000.0 * width * t / 63.0,
-                ),
+            let (name, bank) = match o.size_search {
+                SizeSearch::Binary => (format!("{bits}-step threshold search"), false),
+                SizeSearch::Bank => (format!("{t}-comparator bank + popcount"), true),
             };
-            let a = tr * UM2_PER_T;
+            let a = threshold_search_um2(*bits, bank);
             add(
                 name,
                 lanes,
@@ -275,7 +302,7 @@ pub fn cost(unit: &Unit) -> Cost {
     match &r.net {
         Network::Fixed { .. } => {}
         Network::Benes(b) => {
-            let a = b.control_bits() as f64 * 26.0 * UM2_PER_T;
+            let a = benes_um2(b.control_bits());
             add(
                 format!(
                     "Beneš network ({} lanes, {} columns)",
@@ -297,7 +324,7 @@ pub fn cost(unit: &Unit) -> Cost {
         }
         Network::Crossbar(x) => {
             let n = x.lanes() as f64;
-            let a = n * n * 12.0 * UM2_PER_T;
+            let a = crossbar_um2(x.lanes());
             add(
                 format!("{n}×{n} crossbar"),
                 lanes,
@@ -359,7 +386,7 @@ pub fn cost(unit: &Unit) -> Cost {
         "[E]",
     );
     Cost {
-        label: format!("{} ({})", unit.layout().spec(), r.net.name()),
+        label: format!("{} ({})", unit.spec(), r.net.name()),
         items,
         latency_cycles: unit.depth(),
         stage_latency: unit.stages().iter().map(|s| (s.name, s.latency)).collect(),

@@ -2,22 +2,27 @@
 //! stages they instantiate (only those the configuration needs), and the stage operations that
 //! compute every code — fp64 adders and multipliers, float→fixed, size comparators or the
 //! sqrt/divide path, and the routing network — without calling emc-core's encoder.
+#![forbid(unsafe_code)]
 
 use core::fmt;
 
-use emc_core::{Aabb, Channel, Frame, Layout, LayoutSpec, Quantizer, SizeTransform};
+use emc_core::{Aabb, Channel, Frame, Layout, LayoutSpec, SizeTransform};
 
 use crate::error::HwError;
+use crate::firmware::{is_regular, position_scale, size_thresholds};
 use crate::fixed::{compare_key, exp_add, float_to_fixed};
-use crate::routing::{field_offsets, layout_permutation, morton_wires, Benes, Crossbar};
+use crate::routing::{
+    field_offsets, layout_permutation, morton_wires, permute, Benes, Crossbar, Permutation,
+};
 
 /// Which interleave hardware to build.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
 pub enum RoutingChoice {
-    /// Fixed wiring for `morton30`/`morton63`, a Beneš network for everything else.
+    /// Fixed wiring for regular fixed patterns (`morton30`, `morton63`, and `custom:` patterns
+    /// that repeat one group of distinct channels), a Beneš network for everything else.
     #[default]
     Auto,
-    /// Fixed Morton wiring (only for `morton30`/`morton63`).
+    /// Fixed wiring (only for regular fixed patterns).
     Fixed,
     /// A Beneš network (2 pipeline cycles).
     Benes,
@@ -115,10 +120,12 @@ pub enum SizeUnit {
 /// The interleave as instantiated.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Network {
-    /// Morton wires `(xyz)^n`: no logic, no configuration.
+    /// Wires of a regular fixed pattern: no logic, no configuration.
     Fixed {
-        /// Bits per axis.
-        per_axis: u32,
+        /// Code bit `j` is packed bit `src[j]`.
+        src: Box<Permutation>,
+        /// `Some(n)` for Morton wires `(xyz)^n` (the model's shift-and-mask path).
+        morton: Option<u32>,
     },
     /// A Beneš network with per-frame control bits.
     Benes(Benes),
@@ -158,14 +165,22 @@ pub struct Registers {
     pub net: Network,
 }
 
-/// `2^n` for `n <= 64`, built from its exponent field (exact).
-fn pow2(n: u32) -> f64 {
-    f64::from_bits((1023 + n as u64) << 52)
-}
-
 impl Registers {
-    /// Load the registers from a resolved layout and its frame, as a host driver would.
+    /// Load the registers from a resolved layout and its frame, as the firmware would: the
+    /// position scales, size thresholds and routing controls come from [`crate::firmware`]
+    /// and the routing algorithms, not from emc-core's quantiser.
     pub fn load(layout: &Layout, frame: &Frame, opts: &UnitOptions) -> Result<Registers, HwError> {
+        Registers::program(layout, layout.spec().is_adaptive(), frame, opts)
+    }
+
+    /// [`Registers::load`] for a layout whose name may be adaptive (its pattern then depends on
+    /// the frame, so the interleave must be programmable).
+    pub fn program(
+        layout: &Layout,
+        adaptive: bool,
+        frame: &Frame,
+        opts: &UnitOptions,
+    ) -> Result<Registers, HwError> {
         let bits = layout.bit_counts();
         let o = frame.origin();
         let e = frame.extent();
@@ -176,7 +191,7 @@ impl Registers {
             axis_on[a] = bits[a] > 0;
             origin2[a] = 2.0 * o[a];
             half_scale[a] = if e[a] > 0.0 && bits[a] > 0 {
-                (pow2(bits[a]) / e[a]) * 0.5
+                position_scale(bits[a], e[a]) * 0.5
             } else {
                 0.0
             };
@@ -184,10 +199,10 @@ impl Registers {
         let s = bits[3];
         let size = if s == 0 {
             SizeUnit::None
-        } else if let Some(t) = Quantizer::new(layout, frame).thresholds() {
+        } else if s <= MAX_THRESHOLD_BITS {
             SizeUnit::Thresholds {
                 bits: s,
-                keys: t.iter().map(|v| v.to_bits()).collect(),
+                keys: size_thresholds(s, layout.transform(), frame.diagonal()),
             }
         } else {
             SizeUnit::Formula {
@@ -197,17 +212,23 @@ impl Registers {
             }
         };
         let len = layout.len();
-        let fixed_layout = match layout.spec() {
-            LayoutSpec::Morton30 => Some(10),
-            LayoutSpec::Morton63 => Some(21),
-            _ => None,
-        };
+        let chans = layout.channels();
+        let regular = !adaptive && is_regular(chans);
+        let morton = (bits[3] == 0
+            && bits[0] <= 21
+            && chans
+                .chunks(3)
+                .all(|g| g == [Channel::X, Channel::Y, Channel::Z]))
+        .then_some(bits[0]);
         let lanes_k = if len <= 32 { 5 } else { 6 };
         let perm = layout_permutation(layout);
-        let net = match (opts.routing, fixed_layout) {
-            (RoutingChoice::Auto | RoutingChoice::Fixed, Some(n)) => Network::Fixed { per_axis: n },
-            (RoutingChoice::Fixed, None) => {
-                return Err(HwError::NotFixedLayout(layout.spec().to_string()))
+        let net = match (opts.routing, regular) {
+            (RoutingChoice::Auto | RoutingChoice::Fixed, true) => Network::Fixed {
+                src: Box::new(perm),
+                morton,
+            },
+            (RoutingChoice::Fixed, false) => {
+                return Err(HwError::NotFixedLayout(layout.pattern_str().to_string()))
             }
             (RoutingChoice::Auto | RoutingChoice::Benes, _) => {
                 Network::Benes(Benes::route(&perm, lanes_k))
@@ -280,6 +301,9 @@ pub struct Stage {
     pub hw: String,
 }
 
+/// Largest size-bit count served by threshold registers (the formula path above).
+pub const MAX_THRESHOLD_BITS: u32 = 8;
+
 /// Latency of the 3-stage fp64 adder and multiplier (DesignWare-class, 1 GHz at 40 nm).
 pub const FP_LATENCY: u32 = 3;
 /// Latency of a pipelined fp64 square root or divider (multiplicative, assumed).
@@ -328,27 +352,46 @@ pub struct Unit {
     stages: Vec<Stage>,
     opts: UnitOptions,
     layout: Layout,
+    spec: LayoutSpec,
 }
 
 impl Unit {
     /// Configure a unit for a layout in a frame.
     pub fn new(layout: &Layout, frame: &Frame, opts: &UnitOptions) -> Result<Unit, HwError> {
+        Unit::build(layout.spec(), *layout, frame, opts)
+    }
+
+    /// Configure a unit for a layout name: the firmware derives the bit schedule from the
+    /// frame ([`crate::firmware::schedule`]), then the registers are loaded.
+    pub fn for_spec(spec: &LayoutSpec, frame: &Frame, opts: &UnitOptions) -> Result<Unit, HwError> {
+        let (chans, transform) = crate::firmware::schedule(spec, frame.extent());
+        let layout = Layout::from_channels(&chans, transform).map_err(HwError::Layout)?;
+        Unit::build(*spec, layout, frame, opts)
+    }
+
+    fn build(
+        spec: LayoutSpec,
+        layout: Layout,
+        frame: &Frame,
+        opts: &UnitOptions,
+    ) -> Result<Unit, HwError> {
         if opts.lanes == 0 {
             return Err(HwError::NoLanes(0));
         }
-        let regs = Registers::load(layout, frame, opts)?;
+        let regs = Registers::program(&layout, spec.is_adaptive(), frame, opts)?;
         let stages = build_stages(&regs, opts);
         Ok(Unit {
             regs,
             stages,
             opts: *opts,
-            layout: *layout,
+            layout,
+            spec,
         })
     }
 
-    /// Configure a unit for a layout name, resolving adaptive layouts against the frame.
-    pub fn for_spec(spec: &LayoutSpec, frame: &Frame, opts: &UnitOptions) -> Result<Unit, HwError> {
-        Unit::new(&spec.resolve(frame.extent()), frame, opts)
+    /// The layout name the unit was configured for.
+    pub fn spec(&self) -> LayoutSpec {
+        self.spec
     }
 
     /// The registers.
@@ -491,8 +534,11 @@ impl Unit {
                 }
             }
             Op::Pack => {
-                if let Network::Fixed { .. } = r.net {
-                    t.word = morton_wires(t.q[0], t.q[1], t.q[2]);
+                if let Network::Fixed { src, morton } = &r.net {
+                    t.word = match morton {
+                        Some(_) => morton_wires(t.q[0], t.q[1], t.q[2]),
+                        None => permute(src, self.packed(&t.q), r.len),
+                    };
                 }
             }
         }
@@ -539,7 +585,10 @@ impl Unit {
             (&self.regs.size, &self.regs.net),
             (
                 SizeUnit::None | SizeUnit::Thresholds { .. } | SizeUnit::Formula { .. },
-                Network::Fixed { .. } | Network::Benes(_)
+                Network::Fixed {
+                    morton: Some(_),
+                    ..
+                } | Network::Benes(_)
             )
         );
         if generic {
@@ -840,7 +889,11 @@ fn build_stages(r: &Registers, opts: &UnitOptions) -> Vec<Stage> {
         1,
         Op::Pack,
         match r.net {
-            Network::Fixed { per_axis } => format!("code register (Morton wires, 3×{per_axis})"),
+            Network::Fixed {
+                morton: Some(per_axis),
+                ..
+            } => format!("code register (Morton wires, 3×{per_axis})"),
+            Network::Fixed { morton: None, .. } => "code register (fixed wires)".into(),
             _ => "code register".into(),
         },
     ));
@@ -854,7 +907,7 @@ impl fmt::Display for Unit {
         writeln!(
             f,
             "unit for {} ({}), {} lane(s), depth {} cycles, lane II {}",
-            self.layout.spec(),
+            self.spec,
             self.layout,
             self.opts.lanes,
             self.depth(),

@@ -1,5 +1,6 @@
 //! Errors of the hardware model: bad knobs (lanes, FIFO depths, bandwidth, clock) are refused
 //! when the unit or its memory port is built, never discovered as a hang or a panic later.
+#![forbid(unsafe_code)]
 
 use thiserror::Error;
 
@@ -36,8 +37,14 @@ pub enum HwError {
     #[error("memory latency must be a finite number of ns >= 0, got {0}")]
     Latency(f64),
     /// A fixed-wiring unit was asked to serve a layout it is not wired for.
-    #[error("fixed Morton wiring serves only morton30/morton63 layouts, not {0}")]
+    #[error("fixed wiring serves only regular fixed patterns (one group of distinct channels repeated), not {0}")]
     NotFixedLayout(String),
+    /// The unit cannot be emitted as RTL (or its RTL run failed).
+    #[error("RTL: {0}")]
+    Rtl(String),
+    /// The firmware's bit schedule is not a valid layout.
+    #[error("layout: {0}")]
+    Layout(emc_core::Error),
     /// The frame (scene bounds) could not be built from the input boxes.
     #[error("scene bounds: {0}")]
     Frame(emc_core::Error),

@@ -15,6 +15,7 @@
 //!
 //! and the bus takes, at the first cycle it is free (one issue per cycle), the write if it may
 //! issue, else the read.
+#![forbid(unsafe_code)]
 
 use std::collections::VecDeque;
 

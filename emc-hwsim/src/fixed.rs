@@ -2,6 +2,7 @@
 //! driven by the exponent), the exact ×2^S exponent adder and the threshold comparator key.
 //! These operate on IEEE-754 binary64 bit patterns, as the hardware would; tests prove them
 //! equal to the Rust float semantics the normative arithmetic is written in.
+#![forbid(unsafe_code)]
 
 /// Sign bit of a binary64.
 const SIGN: u64 = 1 << 63;

@@ -7,8 +7,8 @@
 //!
 //! The unit computes every code through its own stage operations (fp64 adders and multipliers,
 //! float→fixed shifters, threshold comparators or the sqrt/divide path, a Beneš network or
-//! fixed wiring); emc-core only supplies the layout schedule and the size thresholds at
-//! configuration time, as a host driver would, and serves as the test oracle.
+//! fixed wiring); its firmware model ([`firmware`]) derives the bit schedule, position scales
+//! and size thresholds itself. emc-core parses layout names and is the test oracle.
 //!
 //! ```
 //! use emc_core::{Aabb, Frame, LayoutSpec};
@@ -29,19 +29,27 @@
 //! assert_eq!(fast.codes, stepped.codes);
 //! ```
 
-#![forbid(unsafe_code)]
+// Every module says `#![forbid(unsafe_code)]` except `ffi`, the C ABI, which is the one
+// documented exception (raw pointers from C); the crate root only denies, so that `ffi` can
+// allow it for itself.
+#![deny(unsafe_code)]
 #![deny(missing_docs)]
 
 pub mod cost;
 pub mod datapath;
 mod error;
 pub mod fast;
+pub mod ffi;
+pub mod firmware;
 pub mod fixed;
 pub mod memory;
 pub mod routing;
+pub mod rtl;
 pub mod setup;
 pub mod stats;
 pub mod stepped;
+pub mod synth;
+pub mod vectors;
 
 pub use datapath::{Network, RoutingChoice, SizeSearch, SizeUnit, Stage, Unit, UnitOptions};
 pub use error::HwError;

@@ -2,6 +2,7 @@
 //! GB/s and the clock), a read latency, and one transaction issued per cycle at most.
 //! Time inside the port is kept in ticks of `1 / ticks_per_cycle` cycle so that fractional
 //! bytes-per-cycle rates stay exact.
+#![forbid(unsafe_code)]
 
 use crate::error::HwError;
 

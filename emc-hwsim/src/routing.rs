@@ -12,6 +12,7 @@
 //! and the network moves packed bit `src[j]` to code bit `j`. Code position `k` (MSB first) is
 //! code bit `len − 1 − k`; the `r`-th occurrence of channel `c` in the pattern takes the field
 //! bit `offset[c] + n_c − 1 − r` (channel values are written MSB first, as in the pattern).
+#![forbid(unsafe_code)]
 
 use emc_core::Layout;
 
@@ -44,6 +45,16 @@ pub fn layout_permutation(layout: &Layout) -> Permutation {
         src[len - 1 - k] = (off[ci] + bits[ci] - 1 - r) as u8;
     }
     src
+}
+
+/// Apply a permutation as wires: code bit `j < len` is packed bit `src[j]`.
+#[inline]
+pub fn permute(src: &Permutation, packed: u64, len: u32) -> u64 {
+    let mut code = 0u64;
+    for (j, &s) in src.iter().enumerate().take(len as usize) {
+        code |= ((packed >> s) & 1) << j;
+    }
+    code
 }
 
 /// A Beneš network on `2^k` bit lanes: `2k − 1` columns of `2^(k−1)` 2×2 switches, column `i`

@@ -1,6 +1,7 @@
 //! Per-frame setup of the unit: the scene-bounds pass over all AABBs through the memory port,
 //! the layout schedule, the routing controls and the size thresholds, in cycles of the unit
 //! (register writes over a 64-bit configuration bus, one per cycle) and in host work.
+#![forbid(unsafe_code)]
 
 use core::fmt;
 
@@ -16,7 +17,8 @@ pub struct SetupCost {
     pub bounds_cycles: u64,
     /// Cycles of the halving schedule (one step per code bit for adaptive layouts).
     pub schedule_cycles: u64,
-    /// Register writes for scales, origins, routing controls and thresholds.
+    /// Register writes for scales, origins, routing controls and thresholds (the words of
+    /// [`crate::rtl::image`]).
     pub config_writes: u64,
     /// Host steps to route the network (looping algorithm: lanes × log2 lanes).
     pub host_routing_steps: u64,
@@ -47,32 +49,23 @@ pub fn setup_cost(
         bus.max(n.div_ceil(lanes)) + port.latency
     };
     let r = unit.registers();
-    let adaptive = unit.layout().spec().is_adaptive();
+    let adaptive = unit.spec().is_adaptive();
     let schedule_cycles = if adaptive { r.len as u64 } else { 0 };
-    let axes = r.axis_on.iter().filter(|&&o| o).count() as u64;
-    // origin2 and scale per active axis (64 bits each), one word of bit counts and offsets.
-    let mut words = 2 * axes + 1;
+    // The register image the emitted RTL is programmed with, one bus write per word.
+    let words = crate::rtl::image(unit).len() as u64;
     let mut host_routing_steps = 0;
     match &r.net {
         Network::Fixed { .. } => {}
         Network::Benes(b) => {
-            words += (b.control_bits() as u64).div_ceil(64);
             host_routing_steps = b.lanes() as u64 * b.lanes().trailing_zeros() as u64;
         }
         Network::Crossbar(x) => {
-            words += (x.lanes() as u64 * x.lanes().trailing_zeros() as u64).div_ceil(64);
             host_routing_steps = x.lanes() as u64;
         }
     }
     let mut host_threshold_evals = 0;
-    match &r.size {
-        SizeUnit::None => {}
-        SizeUnit::Thresholds { bits, .. } => {
-            let t = (1u64 << bits) - 1;
-            words += t;
-            host_threshold_evals = 64 * t;
-        }
-        SizeUnit::Formula { .. } => words += 1,
+    if let SizeUnit::Thresholds { bits, .. } = &r.size {
+        host_threshold_evals = 64 * ((1u64 << bits) - 1);
     }
     Ok(SetupCost {
         bounds_cycles,

@@ -1,6 +1,7 @@
 //! Run statistics of the modelled unit: cycles, throughput, entry stalls by cause, FIFO
 //! occupancy and memory utilisation. Both simulation modes fill [`Stats`] identically; the
 //! cycle-stepped mode adds per-cycle occupancy histograms ([`Occupancy`]).
+#![forbid(unsafe_code)]
 
 use core::fmt;
 

@@ -2,6 +2,7 @@
 //! read data arrives in the input buffer, every in-flight token's completing stage computes,
 //! finished codes enter the output FIFO, the bus issues at most one transaction (writes first),
 //! and the lanes accept new AABBs under output credit — so the fast mode can be checked.
+#![forbid(unsafe_code)]
 
 use std::collections::VecDeque;
 

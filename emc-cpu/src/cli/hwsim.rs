@@ -62,6 +62,140 @@ pub struct HwsimArgs {
     /// fast mode.
     #[arg(long)]
     pub stepped: bool,
+    /// Write synthesisable Verilog of the configured unit into DIR: `emc_unit.v`, the register
+    /// image `emc_unit.regs.hex`, the self-checking testbench `emc_unit_tb.v` and the vectors
+    /// `emc_unit.vectors` (run: `iverilog -g2005 -o sim emc_unit.v emc_unit_tb.v && vvp sim`).
+    #[arg(long, value_name = "DIR")]
+    pub verilog: Option<std::path::PathBuf>,
+    /// Write test vectors of the configured unit to FILE (TestFloat-style text: six binary32
+    /// box fields and the code in hex, the cycle the box enters and the cycle its code leaves).
+    #[arg(long, value_name = "FILE")]
+    pub vectors: Option<std::path::PathBuf>,
+    /// Boxes of the scene (evenly spaced) in the vectors of --verilog and --vectors.
+    #[arg(long, default_value_t = 1000)]
+    pub vector_count: usize,
+    /// Synthesise the unit's blocks and the whole unit with yosys to the OSU 0.18 µm cells and
+    /// time them with OpenSTA; print them beside the cost model, and the EMC-vs-Morton table.
+    #[arg(long)]
+    pub synth: bool,
+    /// With --synth: also synthesise whole morton63, emc64-var (Beneš and crossbar) and
+    /// emc64-sort units and print the EMC-vs-Morton table (several minutes each).
+    #[arg(long)]
+    pub synth_compare: bool,
+    /// Liberty file for --synth.
+    #[arg(long, default_value = emc_hwsim::synth::OSU018_LIB)]
+    pub liberty: std::path::PathBuf,
+}
+
+/// Boxes of the scene for vectors: `count` evenly spaced ones.
+fn vector_boxes(boxes: &[Aabb], count: usize) -> Vec<Aabb> {
+    if count == 0 || boxes.is_empty() {
+        return Vec::new();
+    }
+    let step = boxes.len().div_ceil(count).max(1);
+    boxes.iter().step_by(step).copied().collect()
+}
+
+/// `--verilog`, `--vectors` and `--synth` of the detailed unit.
+fn hardware_outputs(
+    a: &HwsimArgs,
+    unit: &Unit,
+    frame: &Frame,
+    boxes: &[Aabb],
+) -> anyhow::Result<()> {
+    let vb = vector_boxes(boxes, a.vector_count);
+    if let Some(dir) = &a.verilog {
+        let files = emc_hwsim::rtl::emit(unit, &vb)?;
+        files
+            .write(dir)
+            .with_context(|| format!("writing the RTL into {}", dir.display()))?;
+        println!(
+            "\nRTL of {} written to {}: {} register words, {} vectors, depth {} cycles, II {} (run: cd {} && iverilog -g2005 -o sim emc_unit.v emc_unit_tb.v && vvp sim)",
+            unit.spec(),
+            dir.display(),
+            files.image.len(),
+            files.vector_list.len(),
+            unit.depth(),
+            unit.lane_ii(),
+            dir.display()
+        );
+    }
+    if let Some(path) = &a.vectors {
+        let v = emc_hwsim::vectors::vectors(unit, &vb);
+        std::fs::write(path, emc_hwsim::vectors::to_text(unit, &v))
+            .with_context(|| format!("writing vectors to {}", path.display()))?;
+        println!("\n{} vectors written to {}", v.len(), path.display());
+    }
+    if a.synth {
+        let o = emc_hwsim::synth::SynthOptions {
+            liberty: a.liberty.clone(),
+            ..Default::default()
+        };
+        let t0 = Instant::now();
+        let rep = emc_hwsim::synth::synthesize(unit, &o);
+        let _ = std::fs::remove_dir_all(&o.work);
+        println!("\n{}", rep?);
+        println!("(synthesis took {:.0} s)", t0.elapsed().as_secs_f64());
+    }
+    if a.synth && a.synth_compare {
+        let o = emc_hwsim::synth::SynthOptions {
+            liberty: a.liberty.clone(),
+            ..Default::default()
+        };
+        let t0 = Instant::now();
+        // The seed's question: the EMC unit against the plain Morton unit, in gates.
+        let d = *unit.options();
+        let mut rows = Vec::new();
+        for (s, r) in [
+            (LayoutSpec::Morton63, RoutingChoice::Auto),
+            (LayoutSpec::Emc64Var, RoutingChoice::Benes),
+            (LayoutSpec::Emc64Var, RoutingChoice::Crossbar),
+            (LayoutSpec::Emc64Sort, RoutingChoice::Benes),
+        ] {
+            let u = Unit::for_spec(&s, frame, &UnitOptions { routing: r, ..d })?;
+            let files = emc_hwsim::rtl::emit(&u, &[])?;
+            eprintln!(
+                "synthesising the whole {s} ({}) unit ...",
+                u.registers().net.name()
+            );
+            let g = emc_hwsim::synth::gates(
+                &files.verilog,
+                "emc_unit",
+                &emc_hwsim::synth::SynthOptions {
+                    work: o.work.join(format!(
+                        "{s}-{}",
+                        u.registers().net.name().replace(' ', "-")
+                    )),
+                    ..o.clone()
+                },
+            )?;
+            rows.push((
+                format!("{s} ({})", u.registers().net.name()),
+                g,
+                cost(&u),
+                u.depth(),
+            ));
+        }
+        println!("EMC unit vs plain Morton unit (OSU 0.18 µm synthesis; energy from the model at 40 nm):");
+        println!("| unit | cells | area µm² | vs Morton | latency cycles | critical path ns | max clock MHz | pJ/code (model) | vs Morton |");
+        println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+        let (ba, be) = (rows[0].1.area_um2, rows[0].2.energy_pj());
+        for (label, g, c, depth) in &rows {
+            println!(
+                "| {label} | {} | {:.0} | {:.2}× | {depth} | {:.2} | {:.0} | {:.1} | {:.2}× |",
+                g.cells,
+                g.area_um2,
+                g.area_um2 / ba,
+                g.delay_ns,
+                1000.0 / g.delay_ns,
+                c.energy_pj(),
+                c.energy_pj() / be
+            );
+        }
+        println!("(synthesis took {:.0} s)", t0.elapsed().as_secs_f64());
+        let _ = std::fs::remove_dir_all(&o.work);
+    }
+    Ok(())
 }
 
 /// Codes of the unit that differ from emc-core's encoder, over the whole scene.
@@ -165,6 +299,8 @@ pub fn run(a: &HwsimArgs) -> anyhow::Result<()> {
             bail!("the unit's codes differ from emc-core for {s}: {bad} mismatches");
         }
     }
+
+    hardware_outputs(a, &unit, &frame, &boxes)?;
 
     // Timing of the detailed unit.
     for &bw in &bandwidths {

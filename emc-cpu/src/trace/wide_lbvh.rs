@@ -22,8 +22,8 @@ use emc_core::Aabb;
 use glam::{Vec3, Vec3A};
 
 use crate::sort::RadixKey;
-use crate::trace::wide::{TriPacket, WideNodeN, EMPTY, LEAF, MAX_DEPTH, WIDTH};
 use crate::trace::traverse::prefetch;
+use crate::trace::wide::{TriPacket, WideNodeN, EMPTY, LEAF, MAX_DEPTH, WIDTH};
 use crate::trace::TraceError;
 
 /// Ranges of at most this many primitives are built as one block, in the core's cache.
@@ -361,18 +361,18 @@ fn emit_leaf<const W: usize>(
     for j in 0..k {
         let lo = j * WIDTH;
         let real = (c - lo).min(WIDTH);
-        let mut p = TriPacket::blank(real as u32, j + 1 == k);
+        // Written in place (no packet-sized copy through the stack).
+        out.packets.push(TriPacket::blank(real as u32, j + 1 == k));
+        let p = out.packets.last_mut().expect("just pushed");
         for lane in 0..WIDTH {
             let q = lo + lane.min(real - 1);
             for (v, corner) in tris[q].iter().enumerate() {
-                let corner = Vec3::from(*corner);
                 p.v[3 * v][lane] = corner.x;
                 p.v[3 * v + 1][lane] = corner.y;
                 p.v[3 * v + 2][lane] = corner.z;
             }
             p.id[lane] = ids[q];
         }
-        out.packets.push(p);
     }
     out.leaves += 1;
     (code, COST_PACKET * area * k as f32)
@@ -425,7 +425,6 @@ fn emit_wide<K: RadixKey, const W: usize>(
         kids[best + 1] = r;
         n += 1;
     }
-    let mut node = WideNodeN::<W>::empty();
     let mut cost = COST_NODE * root.area;
     let mut height = 1;
     for (lane, &k) in kids[..n].iter().enumerate() {
@@ -440,9 +439,9 @@ fn emit_wide<K: RadixKey, const W: usize>(
             height = height.max(h + 1);
             code
         };
-        node.set(lane, &kn.aabb(), code, inp.pad);
+        // In place: the node's slot was pushed (empty) before its children.
+        out.nodes[me].set(lane, &kn.aabb(), code, inp.pad);
     }
-    out.nodes[me] = node;
     (me as u32, cost, height)
 }
 
@@ -640,6 +639,14 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
         o.nodes.clear();
         o.packets.clear();
         o.blocks.clear();
+        let prims = (ranges[cuts[g + 1] - 1].1 - ranges[cuts[g]].0) as usize;
+        let fresh = o.packets.capacity() == 0;
+        o.packets.reserve(prims / 2 + 1);
+        o.nodes.reserve(prims / (2 * W) + 1);
+        if fresh {
+            crate::hugepage::advise(&o.packets);
+            crate::hugepage::advise(&o.nodes);
+        }
         let mut go = Outputs {
             nodes: &mut o.nodes,
             packets: &mut o.packets,
@@ -665,10 +672,6 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
         np += o.packets.len();
         out.leaves += o.leaves;
     }
-    let base_n = out.nodes.len();
-    let base_p = out.packets.len();
-    crate::buffers::resized(out.nodes, nn, WideNodeN::empty());
-    crate::buffers::resized(out.packets, np, TriPacket::blank(1, true));
     let shift = |c: u32, no: u32, po: u32| {
         if c == EMPTY {
             c
@@ -678,35 +681,27 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
             c + no
         }
     };
-    // Disjoint destination slices, one per group.
-    let mut node_dst = Vec::with_capacity(outs.len());
-    let mut rest = &mut out.nodes[base_n..];
-    for o in outs.iter() {
-        let (a, b) = rest.split_at_mut(o.nodes.len());
-        node_dst.push(a);
-        rest = b;
-    }
-    let mut packet_dst = Vec::with_capacity(outs.len());
-    let mut rest = &mut out.packets[base_p..];
-    for o in outs.iter() {
-        let (a, b) = rest.split_at_mut(o.packets.len());
-        packet_dst.push(a);
-        rest = b;
-    }
-    outs.par_iter()
-        .zip(node_dst)
-        .zip(packet_dst)
-        .enumerate()
-        .for_each(|(g, ((o, nd), pd))| {
-            let (no, po) = (node_off[g], packet_off[g]);
-            for (d, s) in nd.iter_mut().zip(&o.nodes) {
-                *d = *s;
-                for c in d.child.iter_mut() {
-                    *c = shift(*c, no, po);
-                }
+    // Every element placed by an indexed parallel iterator, written straight into the output's
+    // capacity (no fill pass before the copy): element `i` comes from the group whose offset
+    // range holds it.
+    let base_n = out.nodes.len() as u32;
+    let base_p = out.packets.len() as u32;
+    let groups: &[GroupOut<W>] = outs;
+    let (no, po) = (&node_off, &packet_off);
+    out.nodes
+        .par_extend((base_n..nn as u32).into_par_iter().map(|i| {
+            let g = no.partition_point(|&o| o <= i) - 1;
+            let mut d = groups[g].nodes[(i - no[g]) as usize];
+            for c in d.child.iter_mut() {
+                *c = shift(*c, no[g], po[g]);
             }
-            pd.copy_from_slice(&o.packets);
-        });
+            d
+        }));
+    out.packets
+        .par_extend((base_p..np as u32).into_par_iter().map(|i| {
+            let g = po.partition_point(|&o| o <= i) - 1;
+            groups[g].packets[(i - po[g]) as usize]
+        }));
     let mut blocks = Vec::with_capacity(ranges.len());
     for (g, o) in outs.iter().enumerate() {
         for f in &o.blocks {
@@ -870,8 +865,13 @@ fn finish_tree<K: RadixKey, const W: usize>(
     t3: std::time::Instant,
 ) -> Result<FastTree, TraceError> {
     let n = inp.keys.len();
+    let fresh = packets.capacity() == 0;
     nodes.reserve(n / (2 * W) + 1);
     packets.reserve(n / 2 + 1);
+    if fresh {
+        crate::hugepage::advise(packets);
+        crate::hugepage::advise(nodes);
+    }
     let mut out = Outputs {
         nodes,
         packets,
