@@ -12,6 +12,7 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use emc_core::{Aabb, Backend, Encoder, Frame, LayoutSpec, Normalization, QuantizePath};
 
+use crate::auto::LayoutChoice;
 use crate::cputime::{median, thread_cpu_time};
 use crate::encode::{encode_parallel, expand_slice, stream_baseline};
 use crate::scene::{load_with, SceneOptions};
@@ -29,7 +30,8 @@ pub struct LayoutArgs {
     #[arg(long, default_value_t = DEFAULT_PRIMS)]
     pub prims: usize,
     /// Layouts to report (repeatable); default: morton30, morton63, emc64-sort, emc64-var,
-    /// emc32-var, emc64-var-nosize. Also `custom:PATTERN[:linear]`.
+    /// emc32-var, emc64-var-nosize. Also `custom:PATTERN[:linear]`, and `auto` (or `auto:N`):
+    /// the layout chosen for the scene, printed with its reason and every candidate.
     #[arg(long = "layout")]
     pub layouts: Vec<String>,
     /// Threads for loading the scene and for an extra parallel-encode row (wall clock); the
@@ -97,8 +99,8 @@ pub fn run(args: &LayoutArgs) -> anyhow::Result<()> {
     if rounds == 0 {
         bail!("--rounds must be at least 1");
     }
-    let specs: Vec<LayoutSpec> = if args.layouts.is_empty() {
-        LayoutSpec::STANDARD.to_vec()
+    let specs: Vec<LayoutChoice> = if args.layouts.is_empty() {
+        LayoutSpec::STANDARD.map(LayoutChoice::Fixed).to_vec()
     } else {
         args.layouts
             .iter()
@@ -112,7 +114,7 @@ pub fn run(args: &LayoutArgs) -> anyhow::Result<()> {
     pool.install(|| report(args, &specs, rounds))
 }
 
-fn report(args: &LayoutArgs, specs: &[LayoutSpec], rounds: usize) -> anyhow::Result<()> {
+fn report(args: &LayoutArgs, choices: &[LayoutChoice], rounds: usize) -> anyhow::Result<()> {
     let opts = SceneOptions {
         prims: Some(args.prims),
         ..SceneOptions::default()
@@ -148,8 +150,27 @@ fn report(args: &LayoutArgs, specs: &[LayoutSpec], rounds: usize) -> anyhow::Res
          ratio = median of per-round (kernel / baseline); baseline streams 24 B in + 8 B out \
          per primitive"
     );
+    let mut specs = Vec::with_capacity(choices.len());
+    for c in choices {
+        let (spec, auto) = c.resolve(&boxes, &frame)?;
+        if let Some(a) = auto {
+            println!();
+            println!("{c}: {}", a.reason());
+            for (i, sc) in a.scored.iter().enumerate() {
+                println!(
+                    "  {:<16} est. SAH {:>+8.2}%  {}  {}{}",
+                    sc.candidate.label,
+                    a.change_pct(i),
+                    sc.candidate.spec.resolve(frame.extent()).counts_line(),
+                    sc.candidate.spec,
+                    if i == a.chosen { "  <- chosen" } else { "" }
+                );
+            }
+        }
+        specs.push(spec);
+    }
     let mut out = vec![0u64; n];
-    for spec in specs {
+    for spec in &specs {
         let layout = spec.resolve(frame.extent());
         let dispatched = Encoder::for_layout(layout, &frame);
         println!();

@@ -137,7 +137,7 @@ pub fn build(
     let out = build_scene(
         scene,
         &BuildOptions {
-            layout: variant.spec,
+            layout: variant.spec.into(),
             builder: b,
             threads,
             collapse,
