@@ -28,8 +28,6 @@ pub const UNIFORM_MIN: usize = 2048;
 pub const UNIFORM_MAX: usize = 32_768;
 /// Largest triangles taken, per uniform sample triangle.
 pub const LARGE_PER_UNIFORM: f64 = 0.25;
-/// The thinned strata keep the points whose id hashes below this share of `2^64`.
-pub const THIN_SHARE: f64 = 0.25;
 
 /// Boxes per task of the pass over all boxes.
 const PASS_CHUNK: usize = 1 << 15;
@@ -106,8 +104,6 @@ struct Ctx {
 pub struct Points {
     /// Triangle ids, ascending.
     pub ids: Vec<u32>,
-    /// The point belongs to the thinned strata (id hash below [`THIN_SHARE`]).
-    thin: Vec<bool>,
     /// Per box the position values of a 32-bit channel, `min(⌊u_a · 2^31⌋, 2^32)` with
     /// `u_a = (c2 − 2·o) · fl(1/E)`, and the size values of a 32-bit size channel,
     /// `min(⌊t · 2^32⌋, 2^32)` for `t` = `fl(sqrt(fl(d / D)))` (sqrt) and `fl(d / D)` (linear).
@@ -129,10 +125,8 @@ impl Points {
             c2: Vec::with_capacity(ids.len()),
             q32: Vec::with_capacity(ids.len()),
             corners: Vec::with_capacity(ids.len()),
-            thin: Vec::with_capacity(ids.len()),
             ids,
         };
-        let cut = (THIN_SHARE * 2f64.powi(64)) as u64;
         for &i in &p.ids {
             let b = &boxes[i as usize];
             let c = [
@@ -148,7 +142,6 @@ impl Points {
             p.q32.push([pos(0), pos(1), pos(2), t(lin.sqrt()), t(lin)]);
             p.c2.push(c);
             p.corners.push((Vec3A::from(b.min), Vec3A::from(b.max)));
-            p.thin.push(mix64(SEED.rotate_left(17) ^ i as u64) < cut);
         }
         p
     }
@@ -434,8 +427,6 @@ pub struct Scratch {
     ids: Vec<u32>,
     kbuf: Vec<u64>,
     vbuf: Vec<u32>,
-    thin_keys: Vec<u64>,
-    thin_ids: Vec<u32>,
     stack: Vec<(u32, Vec3A, Vec3A)>,
 }
 
@@ -548,38 +539,30 @@ fn sweep(
     t
 }
 
-/// A candidate's estimate: the headline SAH of its radix tree over the strata and over the
-/// thinned strata, extrapolated to the scene's density.
+/// A candidate's estimate: the headline SAH of its radix tree over the sample.
+///
+/// The sample's tree is taken as it is, not extrapolated to the scene's density: its upper
+/// levels are the full tree's, and on the shared and built-in scenes its ranking of the
+/// candidates matched the full builds' (an extrapolation by the growth per doubling of the
+/// points, measured against a thinned tree, reversed it on San Miguel and the crown).
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Estimate {
-    /// The tree over the strata.
+    /// The tree over the sample.
     pub strata: TreeAreas,
-    /// The tree over the thinned strata.
-    pub thin: TreeAreas,
     /// Triangles of the scene.
     pub prims: usize,
 }
 
 impl Estimate {
-    /// The predicted headline SAH (`Ct = Ci = 1`, one triangle per leaf): the strata tree's
-    /// SAH plus its growth per doubling of the points (from the thinned tree to the strata
-    /// tree) times the doublings that remain to the scene's triangle count. A radix tree's
-    /// SAH grows by about one level's area per doubling; how fast it grows is what a sample
-    /// alone cannot show (a layout that splits too finely along one axis pays more the
-    /// denser the primitives). Exact when the strata are the whole scene.
+    /// The estimated headline SAH (`Ct = Ci = 1`, one triangle per leaf): the sample tree's.
+    /// Exact when the sample is the whole scene.
     pub fn sah(&self) -> f64 {
-        let (m, q) = (self.strata.prims, self.thin.prims);
-        let s = self.strata.sah();
-        if m >= self.prims || q < 2 || q >= m {
-            return s;
-        }
-        let per = (s - self.thin.sah()) / (m as f64 / q as f64).log2();
-        s + per * (self.prims as f64 / m as f64).log2()
+        self.strata.sah()
     }
 }
 
-/// The estimate of one layout on the sample: codes, one stable radix sort, and two sweeps
-/// (all points, then the thinned ones in the same order). One thread's work in a fixed order.
+/// The estimate of one layout on the sample: codes, one stable radix sort, one sweep. One
+/// thread's work in a fixed order.
 pub fn estimate(
     sample: &Sample,
     layout: &Layout,
@@ -594,18 +577,8 @@ pub fn estimate(
     point_codes(sample, pts, layout, frame, backend, &mut s.codes);
     sort_with_ids(&mut s.codes, &mut s.ids, &mut s.kbuf, &mut s.vbuf)?;
     let strata = sweep(pts, &s.codes, &s.ids, &mut s.stack);
-    s.thin_keys.clear();
-    s.thin_ids.clear();
-    for (k, &i) in s.codes.iter().zip(&s.ids) {
-        if pts.thin[i as usize] {
-            s.thin_keys.push(*k);
-            s.thin_ids.push(i);
-        }
-    }
-    let thin = sweep(pts, &s.thin_keys, &s.thin_ids, &mut s.stack);
     Ok(Estimate {
         strata,
-        thin,
         prims: sample.n,
     })
 }

@@ -7,6 +7,7 @@
 
 pub mod candidates;
 pub mod estimate;
+pub mod report;
 
 use std::fmt;
 use std::str::FromStr;

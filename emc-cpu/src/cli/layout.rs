@@ -45,6 +45,14 @@ pub struct LayoutArgs {
     /// quantise for comparison), and report the median of per-round ratios.
     #[arg(long)]
     pub ratios: bool,
+    /// Instead of the encode report: what `--layout auto` picks on each of these scenes (none
+    /// given: every built-in and shared scene) against full LBVH builds of every candidate,
+    /// and what the choice costs against fast-preset builds timed in the same rounds.
+    #[arg(long = "auto-report", num_args = 0.., value_name = "SCENES")]
+    pub auto_report: Option<Vec<String>>,
+    /// With `--auto-report`: also build the fast and balanced presets with and without auto.
+    #[arg(long)]
+    pub presets: bool,
 }
 
 /// One timed kernel of a layout.
@@ -111,7 +119,61 @@ pub fn run(args: &LayoutArgs) -> anyhow::Result<()> {
         .num_threads(args.threads)
         .build()
         .context("cannot start the thread pool")?;
+    if let Some(scenes) = &args.auto_report {
+        return pool.install(|| auto_report(args, scenes, rounds));
+    }
     pool.install(|| report(args, &specs, rounds))
+}
+
+/// `--auto-report`: one scene at a time, a line per scene as it is done, then the table.
+fn auto_report(args: &LayoutArgs, scenes: &[String], rounds: usize) -> anyhow::Result<()> {
+    use crate::auto::report;
+    let scenes = if scenes.is_empty() {
+        report::default_scenes()
+    } else {
+        scenes.to_vec()
+    };
+    let opts = report::ReportOptions {
+        rounds,
+        presets: args.presets,
+    };
+    let load = report::load_average();
+    let mut rows = Vec::with_capacity(scenes.len());
+    for spec in &scenes {
+        let sopts = SceneOptions {
+            prims: spec.starts_with("builtin:").then_some(args.prims),
+            ..SceneOptions::default()
+        };
+        let scene = load_with(spec, &sopts).with_context(|| format!("loading {spec}"))?;
+        let r = report::measure(&scene, &opts).with_context(|| format!("scene {spec}"))?;
+        println!("{}: {}", r.name, r.choice.reason());
+        for (i, s) in r.choice.scored.iter().enumerate() {
+            println!(
+                "  {:<16} est. {:>+7.2}%  full SAH {:>9.4} ({:>+6.2}% vs {}){}{}",
+                s.candidate.label,
+                r.choice.change_pct(i),
+                r.full[i],
+                (r.full[i] / r.full[r.choice.reference] - 1.0) * 100.0,
+                r.choice.scored[r.choice.reference].candidate.label,
+                if i == r.choice.chosen {
+                    "  <- auto"
+                } else {
+                    ""
+                },
+                if i == r.best() { "  <- best" } else { "" },
+            );
+        }
+        rows.push(r);
+    }
+    println!();
+    println!(
+        "auto report: {} threads, {rounds} alternating rounds (medians, wall ms), load average {} at the start, {} at the end",
+        rayon::current_num_threads(),
+        load.map_or("?".into(), |l| format!("{l:.2}")),
+        report::load_average().map_or("?".into(), |l| format!("{l:.2}")),
+    );
+    print!("{}", report::table(&rows));
+    Ok(())
 }
 
 fn report(args: &LayoutArgs, choices: &[LayoutChoice], rounds: usize) -> anyhow::Result<()> {
