@@ -103,6 +103,7 @@ fn writes_markdown_csv_svg_and_png() {
         "## 2. What accuracy costs in time",
         "## 3. Example codes",
         "## 4. Shared scenes",
+        "## What every bit buys",
         "morton63-cube",
         "★",
     ] {
@@ -122,6 +123,9 @@ fn writes_markdown_csv_svg_and_png() {
             );
             assert!(svg.contains("<circle"), "{p:?} has points");
         }
+        let p = dir.join(format!("{stem}-bits.svg"));
+        let svg = std::fs::read_to_string(&p).expect("bit-budget svg");
+        assert!(svg.contains("code bits"), "{p:?} has its axis");
         let png = std::fs::File::open(dir.join(format!("{stem}.png"))).expect("png");
         let img = Image::read_png(std::io::BufReader::new(png)).expect("decodes");
         assert_eq!((img.width, img.height), (24, 24));
@@ -132,7 +136,7 @@ fn writes_markdown_csv_svg_and_png() {
             "{stem}.png shows the scene"
         );
     }
-    assert_eq!(res.files.len(), 3 + 2 * 3);
+    assert_eq!(res.files.len(), 3 + 2 * 4);
     for f in &res.files {
         assert!(f.is_file(), "{f:?}");
     }
