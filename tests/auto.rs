@@ -189,11 +189,9 @@ fn mixed_huge_and_tiny_gets_size_bits() {
     check_favoured("mixed", &mixed(), LayoutSpec::Emc64Sort);
 }
 
-/// Known miss: the sample (2,048 of 40,000 boxes) does not reach the depth where the linear
-/// size bits separate these boxes, so auto keeps `emc64-var` (8% behind). Run with
-/// `--ignored` to see it.
+/// The sample (2,048 of 40,000 boxes) alone does not reach the depth where the linear size
+/// bits separate these boxes (it kept `emc64-var`, 8% behind); the dense windows do.
 #[test]
-#[ignore = "known miss of the sampled estimate on dense, heavily overlapping cubes"]
 fn uniform_cube_of_spread_sizes_gets_linear_size_bits() {
     check_favoured("cube", &cube(), LayoutSpec::Emc64Sort);
 }

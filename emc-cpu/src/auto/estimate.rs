@@ -29,6 +29,17 @@ pub const UNIFORM_MAX: usize = 32_768;
 /// Largest triangles taken, per uniform sample triangle.
 pub const LARGE_PER_UNIFORM: f64 = 0.25;
 
+/// Dense windows: sub-volumes taken at the scene's full density, whose trees stand in for the
+/// deep levels of the full tree that the sparse sample does not reach.
+pub const WINDOWS: usize = 3;
+/// Boxes per window, as a multiple of the sample's spacing (scene triangles per sample
+/// triangle): the window's trees then hold several levels below the sample's.
+pub const WINDOW_PER_SPACING: usize = 4;
+/// Fewest boxes per window.
+pub const WINDOW_MIN: usize = 512;
+/// Most boxes per window.
+pub const WINDOW_MAX: usize = 1024;
+
 /// Boxes per task of the pass over all boxes.
 const PASS_CHUNK: usize = 1 << 15;
 
@@ -184,6 +195,16 @@ pub struct Sample {
     pub large_d2: f64,
     /// Size quantiles of the uniform part (the generated candidates' size bits follow them).
     pub size_stats: SizeStats,
+    /// The dense windows, once [`Sample::draw_windows`] drew them: each the boxes nearest
+    /// (by centroid, Chebyshev distance) to one uniform sample triangle, all of them.
+    pub windows: Vec<Points>,
+    /// Scene triangles per sample triangle: the window tree's nodes of fewer boxes than this
+    /// are the deep levels the sample tree does not hold.
+    pub spacing: f64,
+    /// The uniform strata's ids (the windows' centres are drawn among them).
+    uniform_ids: Vec<u32>,
+    /// The frame's constants of the shared values.
+    ctx: Ctx,
     /// Per axis: the shift rule of [`Points::q32`] holds for every channel width 1..=32
     /// (else the value is computed from `c2` with the candidate's own scale).
     exact: [bool; 3],
@@ -238,6 +259,7 @@ impl Sample {
             large_d2 = thr;
         }
         let large = ids.len() - uniform.len();
+        let spacing = n as f64 / ids.len().max(1) as f64;
         Sample {
             n,
             sizes,
@@ -246,8 +268,26 @@ impl Sample {
             large,
             large_d2,
             size_stats,
+            windows: Vec::new(),
+            spacing,
+            uniform_ids: uniform,
+            ctx,
             exact,
         }
+    }
+
+    /// Draw the dense windows (see [`Sample::windows`]); nothing when the sample is the whole
+    /// scene. `boxes` must be the ones the sample was drawn from. One parallel pass over them,
+    /// deterministic at any thread count.
+    pub fn draw_windows(&mut self, boxes: &[Aabb]) {
+        self.windows.clear();
+        if self.is_whole() || boxes.len() != self.n {
+            return;
+        }
+        self.windows = windows(boxes, &self.uniform_ids, self.spacing)
+            .into_iter()
+            .map(|w| Points::gather(boxes, w, &self.ctx))
+            .collect();
     }
 
     /// Sampled triangles.
@@ -264,6 +304,87 @@ impl Sample {
     pub fn is_whole(&self) -> bool {
         self.strata.len() == self.n
     }
+}
+
+/// Twice the centroid of a box, exact in `f64`.
+#[inline(always)]
+fn centre2(b: &Aabb) -> [f64; 3] {
+    [
+        b.min.x as f64 + b.max.x as f64,
+        b.min.y as f64 + b.max.y as f64,
+        b.min.z as f64 + b.max.z as f64,
+    ]
+}
+
+/// Chebyshev distance between two doubled centroids.
+#[inline(always)]
+fn cheb(a: &[f64; 3], b: &[f64; 3]) -> f64 {
+    (a[0] - b[0])
+        .abs()
+        .max((a[1] - b[1]).abs())
+        .max((a[2] - b[2]).abs())
+}
+
+/// The dense windows' ids (each ascending): [`WINDOWS`] centres among the uniform sample (one
+/// per stratum of it, jittered), each with the `w` boxes nearest to it by centroid (ties by
+/// id), `w` = [`WINDOW_PER_SPACING`] sample spacings within [`WINDOW_MIN`]..=[`WINDOW_MAX`].
+/// The search radius comes from the uniform sample (twice the distance of its `k`-th nearest
+/// point, `k` the sample's share of `w`), then one parallel pass over all boxes collects those
+/// inside it; a window whose radius holds fewer than `w` keeps all it found.
+fn windows(boxes: &[Aabb], uniform: &[u32], spacing: f64) -> Vec<Vec<u32>> {
+    let n = boxes.len();
+    let mu = uniform.len();
+    if mu == 0 {
+        return Vec::new();
+    }
+    let w = ((WINDOW_PER_SPACING as f64 * spacing) as usize).clamp(WINDOW_MIN, WINDOW_MAX);
+    let k = ((w as f64 * mu as f64 / n as f64).ceil() as usize).clamp(1, mu - 1);
+    let uc: Vec<[f64; 3]> = uniform
+        .iter()
+        .map(|&i| centre2(&boxes[i as usize]))
+        .collect();
+    let centres: Vec<[f64; 3]> = jittered_sample(mu, WINDOWS.min(mu), SEED ^ 0x57)
+        .into_iter()
+        .map(|j| uc[j as usize])
+        .collect();
+    let radius: Vec<f64> = centres
+        .iter()
+        .map(|c| {
+            let mut d: Vec<f64> = uc.iter().map(|u| cheb(c, u)).collect();
+            d.sort_by(f64::total_cmp);
+            2.0 * d[k]
+        })
+        .collect();
+    let per: Vec<Vec<(usize, f64, u32)>> = boxes
+        .par_chunks(PASS_CHUNK)
+        .enumerate()
+        .map(|(ci, chunk)| {
+            let mut found = Vec::new();
+            for (k, b) in chunk.iter().enumerate() {
+                let c = centre2(b);
+                for (wi, (wc, &r)) in centres.iter().zip(&radius).enumerate() {
+                    let d = cheb(&c, wc);
+                    if d <= r {
+                        found.push((wi, d, (ci * PASS_CHUNK + k) as u32));
+                    }
+                }
+            }
+            found
+        })
+        .collect();
+    let mut by: Vec<Vec<(f64, u32)>> = vec![Vec::new(); centres.len()];
+    for (wi, d, id) in per.into_iter().flatten() {
+        by[wi].push((d, id));
+    }
+    by.into_iter()
+        .map(|mut v| {
+            v.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
+            v.truncate(w);
+            let mut ids: Vec<u32> = v.into_iter().map(|(_, id)| id).collect();
+            ids.sort_unstable();
+            ids
+        })
+        .collect()
 }
 
 /// One parallel pass over all boxes: the ids (ascending) of those whose squared diagonal is
@@ -427,7 +548,7 @@ pub struct Scratch {
     ids: Vec<u32>,
     kbuf: Vec<u64>,
     vbuf: Vec<u32>,
-    stack: Vec<(u32, Vec3A, Vec3A)>,
+    stack: Vec<(u32, Vec3A, Vec3A, u32)>,
 }
 
 /// Half the surface area of a box given by its corners, in `f64` from `f64` differences (so
@@ -458,6 +579,8 @@ fn level(keys: &[u64], p: usize) -> u32 {
 pub struct TreeAreas {
     /// Sum of the inner nodes' half areas (root included).
     pub inner: f64,
+    /// Of them, the inner nodes over fewer points than the sweep's cut.
+    pub deep: f64,
     /// Sum of the leaves' half areas.
     pub leaves: f64,
     /// Half area of the root.
@@ -506,7 +629,8 @@ fn sweep(
     points: &Points,
     keys: &[u64],
     order: &[u32],
-    stack: &mut Vec<(u32, Vec3A, Vec3A)>,
+    cut: f64,
+    stack: &mut Vec<(u32, Vec3A, Vec3A, u32)>,
 ) -> TreeAreas {
     let m = keys.len();
     let mut t = TreeAreas {
@@ -517,47 +641,72 @@ fn sweep(
     let (mut root_lo, mut root_hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
     for (p, &id) in order.iter().enumerate() {
         let (mut lo, mut hi) = points.corners[id as usize];
+        let mut count = 1u32;
         t.leaves += half_area(lo, hi);
         root_lo = root_lo.min(lo);
         root_hi = root_hi.max(hi);
         let l = if p + 1 < m { level(keys, p) } else { u32::MAX };
         // Close every open subtree whose split is below this one: its right part ends here.
-        while let Some(&(tl, tlo, thi)) = stack.last() {
+        while let Some(&(tl, tlo, thi, tc)) = stack.last() {
             if tl >= l {
                 break;
             }
             stack.pop();
             lo = lo.min(tlo);
             hi = hi.max(thi);
-            t.inner += half_area(lo, hi);
+            count += tc;
+            let a = half_area(lo, hi);
+            t.inner += a;
+            if (count as f64) < cut {
+                t.deep += a;
+            }
         }
         if p + 1 < m {
-            stack.push((l, lo, hi));
+            stack.push((l, lo, hi, count));
         }
     }
     t.root = half_area(root_lo, root_hi);
     t
 }
 
-/// A candidate's estimate: the headline SAH of its radix tree over the sample.
+/// A candidate's estimate: the headline SAH of the full tree, its upper levels from the
+/// radix tree over the sample and its deep levels from the trees over the dense windows.
 ///
-/// The sample's tree is taken as it is, not extrapolated to the scene's density: its upper
-/// levels are the full tree's, and on the shared and built-in scenes its ranking of the
-/// candidates matched the full builds' (an extrapolation by the growth per doubling of the
-/// points, measured against a thinned tree, reversed it on San Miguel and the crown).
+/// The sample tree's inner nodes stand for the full tree's nodes of at least one sample
+/// spacing of triangles (a node over `k` sample points bounds about the `k · spacing`
+/// triangles of the full node). The full tree's nodes below that are seen in the windows at
+/// the scene's own density: their inner nodes over fewer than one spacing of boxes, scaled by
+/// scene triangles per window box. On a dense cube of overlapping boxes only these deep levels
+/// tell the size bits apart; on the shared scenes the sample tree's ranking holds.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
 pub struct Estimate {
     /// The tree over the sample.
     pub strata: TreeAreas,
+    /// The windows' trees, summed (`deep` over nodes below one sample spacing).
+    pub windows: TreeAreas,
     /// Triangles of the scene.
     pub prims: usize,
 }
 
 impl Estimate {
-    /// The estimated headline SAH (`Ct = Ci = 1`, one triangle per leaf): the sample tree's.
-    /// Exact when the sample is the whole scene.
+    /// The estimated headline SAH (`Ct = Ci = 1`, one triangle per leaf) of the sample tree
+    /// alone: the upper levels. Exact when the sample is the whole scene.
     pub fn sah(&self) -> f64 {
         self.strata.sah()
+    }
+
+    /// The estimate with the deep levels, when the windows were measured: the sample tree's
+    /// inner areas, the windows' deep areas scaled to the scene and the sample's leaves
+    /// scaled to the scene, over the sample root.
+    pub fn dense_sah(&self) -> Option<f64> {
+        let s = &self.strata;
+        if self.windows.prims == 0 || s.prims == 0 || s.root <= 0.0 {
+            return None;
+        }
+        let n = self.prims as f64;
+        let deep = self.windows.deep * n / self.windows.prims as f64;
+        let leaves = s.leaves * n / s.prims as f64;
+        Some((s.inner + deep + leaves) / s.root)
     }
 }
 
@@ -576,11 +725,38 @@ pub fn estimate(
     }
     point_codes(sample, pts, layout, frame, backend, &mut s.codes);
     sort_with_ids(&mut s.codes, &mut s.ids, &mut s.kbuf, &mut s.vbuf)?;
-    let strata = sweep(pts, &s.codes, &s.ids, &mut s.stack);
+    let strata = sweep(pts, &s.codes, &s.ids, 0.0, &mut s.stack);
     Ok(Estimate {
         strata,
+        windows: TreeAreas::default(),
         prims: sample.n,
     })
+}
+
+/// The windows' trees of one layout (codes, sort and sweep per window, summed), for
+/// [`Estimate::windows`]. One thread's work in a fixed order.
+pub fn estimate_windows(
+    sample: &Sample,
+    layout: &Layout,
+    frame: &Frame,
+    backend: Backend,
+    s: &mut Scratch,
+) -> Result<TreeAreas, SortError> {
+    let mut windows = TreeAreas::default();
+    for w in &sample.windows {
+        if w.is_empty() {
+            continue;
+        }
+        point_codes(sample, w, layout, frame, backend, &mut s.codes);
+        sort_with_ids(&mut s.codes, &mut s.ids, &mut s.kbuf, &mut s.vbuf)?;
+        let t = sweep(w, &s.codes, &s.ids, sample.spacing, &mut s.stack);
+        windows.inner += t.inner;
+        windows.deep += t.deep;
+        windows.leaves += t.leaves;
+        windows.root += t.root;
+        windows.prims += t.prims;
+    }
+    Ok(windows)
 }
 
 #[cfg(test)]

@@ -1,8 +1,8 @@
 //! `--layout auto`: the code layout chosen per scene. A [`LayoutChoice`] is what builds take
 //! (a fixed [`LayoutSpec`] or `auto`); `auto` resolves, once the scene's boxes and frame are
 //! known, to the candidate ([`candidates`]) whose LBVH over a size-stratified sample of the
-//! primitives has the least inner-node area ([`estimate`]), with the reason printed by the
-//! CLI. emc-core's `LayoutSpec` stays a name over extents only; everything here needs the boxes.
+//! primitives has the least inner-node area ([`estimate`]; candidates it ties are told apart by
+//! the deep levels of dense windows), with the reason printed by the CLI. emc-core's `LayoutSpec` stays a name over extents only; everything here needs the boxes.
 #![forbid(unsafe_code)]
 
 pub mod candidates;
@@ -17,7 +17,7 @@ use emc_core::{Aabb, Frame, LayoutSpec};
 use rayon::prelude::*;
 
 use candidates::{Candidate, Rule};
-use estimate::{estimate, estimate_backend, Estimate, Sample, Scratch};
+use estimate::{estimate, estimate_backend, estimate_windows, Estimate, Sample, Scratch};
 
 /// Candidates whose estimated SAH is within this many percent of the best estimate count as
 /// tied with it, and the tie goes to the reference, then to the named layouts: smaller
@@ -176,6 +176,8 @@ pub struct AutoChoice {
     pub uniform: usize,
     /// Sample triangles taken for being among the largest.
     pub large: usize,
+    /// Boxes in the dense windows (0 when the sample tree alone decided).
+    pub window_boxes: usize,
     /// Wall milliseconds of the choice (sample pass and every candidate's estimate).
     pub wall_ms: f64,
 }
@@ -210,6 +212,30 @@ impl AutoChoice {
             Rule::Named => c.label.to_string(),
             _ => format!("{} ({})", c.label, c.spec),
         }
+    }
+
+    /// The candidates the dense windows were measured for (those the sample tree tied).
+    pub fn tied(&self) -> Vec<usize> {
+        (0..self.scored.len())
+            .filter(|&i| self.scored[i].estimate.dense_sah().is_some())
+            .collect()
+    }
+
+    /// Estimated SAH change with the deep levels of candidate `i` against the best tied
+    /// candidate's (the least estimate with the deep levels), in percent; `None` for a
+    /// candidate the windows were not measured for.
+    pub fn dense_change_pct(&self, i: usize) -> Option<f64> {
+        let c = self.scored[i].estimate.dense_sah()?;
+        let best = self
+            .tied()
+            .iter()
+            .filter_map(|&j| self.scored[j].estimate.dense_sah())
+            .fold(f64::INFINITY, f64::min);
+        Some(if best > 0.0 && best.is_finite() {
+            (c / best - 1.0) * 100.0
+        } else {
+            0.0
+        })
     }
 
     /// The decision in one line: the pick, its estimated change against the reference, the
@@ -253,9 +279,39 @@ impl AutoChoice {
                 self.uniform, self.large, self.prims
             )
         };
+        let tied = self.tied();
+        let dense = if tied.is_empty() {
+            String::new()
+        } else {
+            let mut t = tied.clone();
+            t.sort_by(|&a, &b| {
+                let (x, y) = (
+                    self.dense_change_pct(a).unwrap_or(0.0),
+                    self.dense_change_pct(b).unwrap_or(0.0),
+                );
+                x.total_cmp(&y).then(a.cmp(&b))
+            });
+            let list: Vec<String> = t
+                .iter()
+                .map(|&i| {
+                    format!(
+                        "{} {:+.2}%",
+                        self.scored[i].candidate.label,
+                        self.dense_change_pct(i).unwrap_or(0.0)
+                    )
+                })
+                .collect();
+            format!(
+                "; {} tied within {KEEP_MARGIN_PCT}%, decided with the deep levels of {} \
+                 dense-window boxes: {}",
+                tied.len(),
+                self.window_boxes,
+                list.join(", ")
+            )
+        };
         format!(
-            "{} [{}]: by the estimated SAH of the sampled LBVHs, {vs}; next {}; {} candidates \
-             over {sample}, {:.2} ms",
+            "{} [{}]: by the estimated SAH of the sampled LBVHs, {vs}; next {}{dense}; {} \
+             candidates over {sample}, {:.2} ms",
             pick.label,
             pick.rule,
             next.join(", "),
@@ -265,11 +321,14 @@ impl AutoChoice {
     }
 }
 
-/// Choose the layout of `bits` code bits for `boxes` (the frame's boxes): draw the sample,
-/// estimate every candidate on it (in parallel on the current rayon pool, each candidate's
-/// sum on one thread in a fixed order) and take the least estimated SAH; candidates within
-/// [`KEEP_MARGIN_PCT`] of it are tied, and the tie goes to the reference, then the named
-/// layouts, then the earliest generated one. Deterministic: any thread count gives the same choice.
+/// Choose the layout of `bits` code bits for `boxes` (the frame's boxes), in two stages.
+/// First the sample tree: every candidate's estimate over the sample (in parallel on the
+/// current rayon pool, each candidate's sum on one thread in a fixed order); the candidates
+/// within [`KEEP_MARGIN_PCT`] of the least estimate are tied. One of them alone is the pick.
+/// Several: the sample could not tell them apart, so the dense windows are drawn and each tied
+/// candidate's estimate gains the deep levels ([`Estimate::dense_sah`]); the least of those
+/// wins, and again within the margin the tie goes to the reference, then the named layouts,
+/// then the earliest generated one. Deterministic: any thread count gives the same choice.
 pub fn choose(boxes: &[Aabb], frame: &Frame, bits: u32) -> Result<AutoChoice, AutoError> {
     if boxes.is_empty() {
         return Err(AutoError::Empty);
@@ -278,7 +337,7 @@ pub fn choose(boxes: &[Aabb], frame: &Frame, bits: u32) -> Result<AutoChoice, Au
         return Err(AutoError::BadBits(format!("auto:{bits}")));
     }
     let t0 = Instant::now();
-    let sample = Sample::draw(boxes, frame);
+    let mut sample = Sample::draw(boxes, frame);
     let cands = candidates::candidates(frame, &sample.size_stats, bits);
     let backend = estimate_backend();
     let e = frame.extent();
@@ -295,15 +354,6 @@ pub fn choose(boxes: &[Aabb], frame: &Frame, bits: u32) -> Result<AutoChoice, Au
             estimate: a?,
         });
     }
-    let best = (0..scored.len())
-        .min_by(|&a, &b| {
-            scored[a]
-                .estimate
-                .sah()
-                .total_cmp(&scored[b].estimate.sah())
-                .then(a.cmp(&b))
-        })
-        .unwrap_or(0);
     let reference = scored
         .iter()
         .position(|s| {
@@ -314,25 +364,67 @@ pub fn choose(boxes: &[Aabb], frame: &Frame, bits: u32) -> Result<AutoChoice, Au
         })
         .or_else(|| scored.iter().position(|s| s.candidate.rule != Rule::Named))
         .unwrap_or(0);
+    let sah1: Vec<f64> = scored.iter().map(|s| s.estimate.sah()).collect();
+    let tied = within_margin(&sah1, &(0..scored.len()).collect::<Vec<_>>());
+    let mut window_boxes = 0;
+    let chosen = if tied.len() > 1 && !sample.is_whole() {
+        sample.draw_windows(boxes);
+        window_boxes = sample.windows.iter().map(|w| w.len()).sum();
+        let win: Vec<Result<estimate::TreeAreas, crate::sort::SortError>> = tied
+            .par_iter()
+            .map_init(Scratch::default, |s, &i| {
+                estimate_windows(&sample, &cands[i].spec.resolve(e), frame, backend, s)
+            })
+            .collect();
+        for (&i, w) in tied.iter().zip(win) {
+            scored[i].estimate.windows = w?;
+        }
+        let sah2: Vec<f64> = scored
+            .iter()
+            .map(|s| s.estimate.dense_sah().unwrap_or(f64::INFINITY))
+            .collect();
+        pick(&within_margin(&sah2, &tied), &scored, reference)
+    } else {
+        pick(&tied, &scored, reference)
+    };
     let mut c = AutoChoice {
         bits,
         scored,
-        chosen: best,
+        chosen,
         reference,
         prims: boxes.len(),
         uniform: sample.uniform,
         large: sample.large,
+        window_boxes,
         wall_ms: 0.0,
     };
-    // Within the margin of the best estimate, prefer the reference, then the named layouts,
-    // then the generated ones, each in list order.
-    let best_sah = c.scored[best].estimate.sah();
-    let close = |i: usize| c.scored[i].estimate.sah() <= best_sah * (1.0 + KEEP_MARGIN_PCT / 100.0);
-    c.chosen = std::iter::once(reference)
-        .chain((0..c.scored.len()).filter(|&i| c.scored[i].candidate.rule == Rule::Named))
-        .chain(0..c.scored.len())
-        .find(|&i| close(i))
-        .unwrap_or(best);
+    c.chosen = chosen;
     c.wall_ms = t0.elapsed().as_secs_f64() * 1e3;
     Ok(c)
+}
+
+/// Of the candidates `among`, those whose score is within [`KEEP_MARGIN_PCT`] of the least
+/// (ascending indices).
+fn within_margin(score: &[f64], among: &[usize]) -> Vec<usize> {
+    let best = among
+        .iter()
+        .map(|&i| score[i])
+        .fold(f64::INFINITY, f64::min);
+    among
+        .iter()
+        .copied()
+        .filter(|&i| score[i] <= best * (1.0 + KEEP_MARGIN_PCT / 100.0))
+        .collect()
+}
+
+/// The pick among tied candidates: the reference, else the first named one, else the first.
+fn pick(tied: &[usize], scored: &[Scored], reference: usize) -> usize {
+    if tied.contains(&reference) {
+        return reference;
+    }
+    tied.iter()
+        .copied()
+        .find(|&i| scored[i].candidate.rule == Rule::Named)
+        .or_else(|| tied.first().copied())
+        .unwrap_or(reference)
 }
