@@ -195,16 +195,13 @@ pub struct Sample {
     pub large_d2: f64,
     /// Size quantiles of the uniform part (the generated candidates' size bits follow them).
     pub size_stats: SizeStats,
-    /// The dense windows, once [`Sample::draw_windows`] drew them: each the boxes nearest
+    /// The dense windows (none when the sample is the whole scene), collected in the pass
+    /// that finds the largest: each the boxes nearest
     /// (by centroid, Chebyshev distance) to one uniform sample triangle, all of them.
     pub windows: Vec<Points>,
     /// Scene triangles per sample triangle: the window tree's nodes of fewer boxes than this
     /// are the deep levels the sample tree does not hold.
     pub spacing: f64,
-    /// The uniform strata's ids (the windows' centres are drawn among them).
-    uniform_ids: Vec<u32>,
-    /// The frame's constants of the shared values.
-    ctx: Ctx,
     /// Per axis: the shift rule of [`Points::q32`] holds for every channel width 1..=32
     /// (else the value is computed from `c2` with the candidate's own scale).
     exact: [bool; 3],
@@ -244,6 +241,7 @@ impl Sample {
         let size_stats = SizeStats::from_sorted_d2(&d2, frame.diagonal());
         let mut large_d2 = f64::INFINITY;
         let mut ids = uniform.clone();
+        let mut windows = Vec::new();
         if mu < n && mu > 0 && sizes.large > 0 {
             // The sample's share of the scene above the threshold should be large / n.
             let want = sizes.large as f64 * mu as f64 / n as f64;
@@ -255,8 +253,17 @@ impl Sample {
             // the share that makes up the count, by a hash of their index.
             let share = ((want - above) / equal.max(1.0)).clamp(0.0, 1.0);
             let cut = (share * 2f64.powi(64)).min(u64::MAX as f64) as u64;
-            ids = merge_unique(&uniform, &largest(boxes, thr, cut));
+            let spec = WindowSpec::new(boxes, &uniform, n as f64 / (mu + sizes.large) as f64);
+            let (big, found) = largest(boxes, thr, cut, spec.as_ref());
+            ids = merge_unique(&uniform, &big);
             large_d2 = thr;
+            if let Some(spec) = spec {
+                windows = spec
+                    .ids(found)
+                    .into_iter()
+                    .map(|w| Points::gather(boxes, w, &ctx))
+                    .collect();
+            }
         }
         let large = ids.len() - uniform.len();
         let spacing = n as f64 / ids.len().max(1) as f64;
@@ -268,26 +275,10 @@ impl Sample {
             large,
             large_d2,
             size_stats,
-            windows: Vec::new(),
+            windows,
             spacing,
-            uniform_ids: uniform,
-            ctx,
             exact,
         }
-    }
-
-    /// Draw the dense windows (see [`Sample::windows`]); nothing when the sample is the whole
-    /// scene. `boxes` must be the ones the sample was drawn from. One parallel pass over them,
-    /// deterministic at any thread count.
-    pub fn draw_windows(&mut self, boxes: &[Aabb]) {
-        self.windows.clear();
-        if self.is_whole() || boxes.len() != self.n {
-            return;
-        }
-        self.windows = windows(boxes, &self.uniform_ids, self.spacing)
-            .into_iter()
-            .map(|w| Points::gather(boxes, w, &self.ctx))
-            .collect();
     }
 
     /// Sampled triangles.
@@ -325,80 +316,156 @@ fn cheb(a: &[f64; 3], b: &[f64; 3]) -> f64 {
         .max((a[2] - b[2]).abs())
 }
 
-/// The dense windows' ids (each ascending): [`WINDOWS`] centres among the uniform sample (one
-/// per stratum of it, jittered), each with the `w` boxes nearest to it by centroid (ties by
-/// id), `w` = [`WINDOW_PER_SPACING`] sample spacings within [`WINDOW_MIN`]..=[`WINDOW_MAX`].
-/// The search radius comes from the uniform sample (twice the distance of its `k`-th nearest
-/// point, `k` the sample's share of `w`), then one parallel pass over all boxes collects those
-/// inside it; a window whose radius holds fewer than `w` keeps all it found.
-fn windows(boxes: &[Aabb], uniform: &[u32], spacing: f64) -> Vec<Vec<u32>> {
-    let n = boxes.len();
-    let mu = uniform.len();
-    if mu == 0 {
-        return Vec::new();
-    }
-    let w = ((WINDOW_PER_SPACING as f64 * spacing) as usize).clamp(WINDOW_MIN, WINDOW_MAX);
-    let k = ((w as f64 * mu as f64 / n as f64).ceil() as usize).clamp(1, mu - 1);
-    let uc: Vec<[f64; 3]> = uniform
-        .iter()
-        .map(|&i| centre2(&boxes[i as usize]))
-        .collect();
-    let centres: Vec<[f64; 3]> = jittered_sample(mu, WINDOWS.min(mu), SEED ^ 0x57)
-        .into_iter()
-        .map(|j| uc[j as usize])
-        .collect();
-    let radius: Vec<f64> = centres
-        .iter()
-        .map(|c| {
-            let mut d: Vec<f64> = uc.iter().map(|u| cheb(c, u)).collect();
-            d.sort_by(f64::total_cmp);
-            2.0 * d[k]
+/// Where the dense windows are: [`WINDOWS`] centres among the uniform sample (one per stratum
+/// of it, jittered), each window the `w` boxes nearest to its centre by centroid (Chebyshev
+/// distance, ties by id), `w` = [`WINDOW_PER_SPACING`] sample spacings within
+/// [`WINDOW_MIN`]..=[`WINDOW_MAX`]. The search radius comes from the uniform sample (twice
+/// the distance of its `k`-th nearest point, `k` the sample's share of `w`); the pass over all
+/// boxes collects those inside it, and a window whose radius holds fewer than `w` keeps all.
+#[derive(Clone, Debug)]
+struct WindowSpec {
+    w: usize,
+    centres: Vec<[f64; 3]>,
+    radius: Vec<f64>,
+    /// f32 bounds of `min + max` around each centre, widened past the f32 rounding.
+    pre: Vec<(Vec3A, Vec3A)>,
+    /// Their union: most boxes fail this one test.
+    union: (Vec3A, Vec3A),
+}
+
+impl WindowSpec {
+    fn new(boxes: &[Aabb], uniform: &[u32], spacing: f64) -> Option<WindowSpec> {
+        let n = boxes.len();
+        let mu = uniform.len();
+        if mu < 2 {
+            return None;
+        }
+        let w = ((WINDOW_PER_SPACING as f64 * spacing) as usize).clamp(WINDOW_MIN, WINDOW_MAX);
+        let k = ((w as f64 * mu as f64 / n as f64).ceil() as usize).clamp(1, mu - 1);
+        let uc: Vec<[f64; 3]> = uniform
+            .iter()
+            .map(|&i| centre2(&boxes[i as usize]))
+            .collect();
+        let centres: Vec<[f64; 3]> = jittered_sample(mu, WINDOWS.min(mu), SEED ^ 0x57)
+            .into_iter()
+            .map(|j| uc[j as usize])
+            .collect();
+        let radius: Vec<f64> = centres
+            .iter()
+            .map(|c| {
+                let mut d: Vec<f64> = uc.iter().map(|u| cheb(c, u)).collect();
+                d.select_nth_unstable_by(k, f64::total_cmp);
+                2.0 * d[k]
+            })
+            .collect();
+        let pre = centres
+            .iter()
+            .zip(&radius)
+            .map(|(c, &r)| {
+                let slack = |a: usize| r + (c[a].abs() + r) * 1e-5;
+                let v = |sign: f64| {
+                    Vec3A::new(
+                        (c[0] + sign * slack(0)) as f32,
+                        (c[1] + sign * slack(1)) as f32,
+                        (c[2] + sign * slack(2)) as f32,
+                    )
+                };
+                (v(-1.0), v(1.0))
+            })
+            .collect::<Vec<(Vec3A, Vec3A)>>();
+        let union = pre.iter().fold(
+            (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY)),
+            |(lo, hi), &(l, h)| (lo.min(l), hi.max(h)),
+        );
+        Some(WindowSpec {
+            w,
+            centres,
+            radius,
+            pre,
+            union,
         })
-        .collect();
-    let per: Vec<Vec<(usize, f64, u32)>> = boxes
-        .par_chunks(PASS_CHUNK)
-        .enumerate()
-        .map(|(ci, chunk)| {
-            let mut found = Vec::new();
-            for (k, b) in chunk.iter().enumerate() {
-                let c = centre2(b);
-                for (wi, (wc, &r)) in centres.iter().zip(&radius).enumerate() {
-                    let d = cheb(&c, wc);
-                    if d <= r {
-                        found.push((wi, d, (ci * PASS_CHUNK + k) as u32));
-                    }
-                }
+    }
+
+    /// Record box `id` (`b`) in every window whose radius holds it: (window, distance, id).
+    #[inline(always)]
+    fn hit(&self, b: &Aabb, id: u32, found: &mut Vec<(usize, f64, u32)>) {
+        let c32 = Vec3A::from(b.min) + Vec3A::from(b.max);
+        if !(c32.cmpge(self.union.0) & c32.cmple(self.union.1)).all() {
+            return;
+        }
+        for (wi, &(lo, hi)) in self.pre.iter().enumerate() {
+            if !(c32.cmpge(lo) & c32.cmple(hi)).all() {
+                continue;
             }
-            found
-        })
-        .collect();
-    let mut by: Vec<Vec<(f64, u32)>> = vec![Vec::new(); centres.len()];
-    for (wi, d, id) in per.into_iter().flatten() {
-        by[wi].push((d, id));
+            let d = cheb(&centre2(b), &self.centres[wi]);
+            if d <= self.radius[wi] {
+                found.push((wi, d, id));
+            }
+        }
     }
-    by.into_iter()
-        .map(|mut v| {
-            v.sort_by(|a, b| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1)));
-            v.truncate(w);
-            let mut ids: Vec<u32> = v.into_iter().map(|(_, id)| id).collect();
-            ids.sort_unstable();
-            ids
-        })
-        .collect()
+
+    /// Each window's ids (ascending) from the pass's finds.
+    fn ids(&self, found: Vec<(usize, f64, u32)>) -> Vec<Vec<u32>> {
+        let w = self.w;
+        let mut by: Vec<Vec<(f64, u32)>> = vec![Vec::new(); self.centres.len()];
+        for (wi, d, id) in found {
+            by[wi].push((d, id));
+        }
+        by.into_iter()
+            .map(|mut v| {
+                // The `w` nearest (ties by id) without sorting them all.
+                let by_dist =
+                    |a: &(f64, u32), b: &(f64, u32)| a.0.total_cmp(&b.0).then(a.1.cmp(&b.1));
+                if v.len() > w {
+                    v.select_nth_unstable_by(w, by_dist);
+                    v.truncate(w);
+                }
+                let mut ids: Vec<u32> = v.into_iter().map(|(_, id)| id).collect();
+                ids.sort_unstable();
+                ids
+            })
+            .collect()
+    }
 }
 
 /// One parallel pass over all boxes: the ids (ascending) of those whose squared diagonal is
-/// above `thr`, or at it when the id's hash is below `cut`.
-fn largest(boxes: &[Aabb], thr: f64, cut: u64) -> Vec<u32> {
+/// above `thr`, or at it when the id's hash is below `cut`; and with `win` the boxes inside
+/// its windows' radii (chunks in order, so neither depends on the thread count).
+fn largest(
+    boxes: &[Aabb],
+    thr: f64,
+    cut: u64,
+    win: Option<&WindowSpec>,
+) -> (Vec<u32>, Vec<(usize, f64, u32)>) {
     // An f32 prefilter below the threshold by more than its rounding (the squared diagonal in
     // f32 is within 3·2^-24 of the f64 one, relatively): only boxes that pass it are
     // compared exactly.
     let pre = (thr * (1.0 - 1e-6)) as f32;
-    let per: Vec<Vec<u32>> = boxes
+    let per: Vec<(Vec<u32>, Vec<(usize, f64, u32)>)> = boxes
         .par_chunks(PASS_CHUNK)
         .enumerate()
         .map(|(c, chunk)| {
             let base = c * PASS_CHUNK;
+            let mut found = Vec::new();
+            // The windows' union box (an empty one without windows), tested per box in the
+            // same loop; the few inside are measured exactly by `WindowSpec::hit`.
+            let (ulo, uhi) = win.map_or(([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]), |w| {
+                (w.union.0.to_array(), w.union.1.to_array())
+            });
+            let mut hit = |k: usize| {
+                if let Some(ws) = win {
+                    ws.hit(&chunk[k], (base + k) as u32, &mut found);
+                }
+            };
+            let inside = |b: &Aabb| {
+                let c = [b.min.x + b.max.x, b.min.y + b.max.y, b.min.z + b.max.z];
+                (c[0] >= ulo[0])
+                    & (c[0] <= uhi[0])
+                    & (c[1] >= ulo[1])
+                    & (c[1] <= uhi[1])
+                    & (c[2] >= ulo[2])
+                    & (c[2] <= uhi[2])
+            };
             let mut big = Vec::new();
             let mut take = |k: usize| {
                 let s = chunk[k].diagonal_sq_f64();
@@ -406,14 +473,16 @@ fn largest(boxes: &[Aabb], thr: f64, cut: u64) -> Vec<u32> {
                     big.push((base + k) as u32);
                 }
             };
-            // Eight boxes per step: the squared diagonals as one f32 vector, then a bit mask
-            // of the boxes that pass the prefilter.
+            // Eight boxes per step: the squared diagonals as one f32 vector, then bit masks
+            // of the boxes that pass the size prefilter and the windows' union.
             let mut blocks = chunk.chunks_exact(8);
             for (j, blk) in blocks.by_ref().enumerate() {
                 let mut d2 = [0f32; 8];
-                for (o, b) in d2.iter_mut().zip(blk) {
+                let mut wmask = 0u32;
+                for (l, (o, b)) in d2.iter_mut().zip(blk).enumerate() {
                     let d = b.max - b.min;
                     *o = d.x * d.x + d.y * d.y + d.z * d.z;
+                    wmask |= (inside(b) as u32) << l;
                 }
                 let mut mask = 0u32;
                 for (l, &x) in d2.iter().enumerate() {
@@ -423,6 +492,10 @@ fn largest(boxes: &[Aabb], thr: f64, cut: u64) -> Vec<u32> {
                     take(8 * j + mask.trailing_zeros() as usize);
                     mask &= mask - 1;
                 }
+                while wmask != 0 {
+                    hit(8 * j + wmask.trailing_zeros() as usize);
+                    wmask &= wmask - 1;
+                }
             }
             let done = chunk.len() - blocks.remainder().len();
             for (k, b) in chunk.iter().enumerate().skip(done) {
@@ -430,11 +503,20 @@ fn largest(boxes: &[Aabb], thr: f64, cut: u64) -> Vec<u32> {
                 if d.x * d.x + d.y * d.y + d.z * d.z >= pre {
                     take(k);
                 }
+                if inside(b) {
+                    hit(k);
+                }
             }
-            big
+            (big, found)
         })
         .collect();
-    per.into_iter().flatten().collect()
+    let mut big = Vec::new();
+    let mut found = Vec::new();
+    for (b, f) in per {
+        big.extend(b);
+        found.extend(f);
+    }
+    (big, found)
 }
 
 /// The sorted union of two ascending id lists.
@@ -823,6 +905,50 @@ mod tests {
                 }
             }
         }
+    }
+
+    #[test]
+    fn windows_are_the_nearest_boxes_at_full_density() {
+        let b = boxes(100_000);
+        let frame = Frame::new(&b).unwrap();
+        let s = Sample::draw(&b, &frame);
+        assert_eq!(s.windows.len(), WINDOWS);
+        let w = ((WINDOW_PER_SPACING as f64 * s.n as f64 / (s.uniform + s.sizes.large) as f64)
+            as usize)
+            .clamp(WINDOW_MIN, WINDOW_MAX);
+        let uniform = jittered_sample(s.n, s.sizes.uniform.min(s.n), SEED);
+        let spec = WindowSpec::new(
+            &b,
+            &uniform,
+            s.n as f64 / (s.uniform + s.sizes.large) as f64,
+        )
+        .unwrap();
+        for (win, c) in s.windows.iter().zip(&spec.centres) {
+            assert!(win.len() == w, "{} boxes, want {w}", win.len());
+            assert!(win.ids.windows(2).all(|p| p[0] < p[1]));
+            // Every box outside is at least as far from the centre as the farthest inside:
+            // the window is the scene at full density, nothing in between skipped.
+            let members: std::collections::HashSet<u32> = win.ids.iter().copied().collect();
+            let far = win
+                .ids
+                .iter()
+                .map(|&j| cheb(c, &centre2(&b[j as usize])))
+                .fold(0.0, f64::max);
+            assert!(far > 0.0);
+            for (i, bx) in b.iter().enumerate() {
+                if !members.contains(&(i as u32)) {
+                    assert!(cheb(c, &centre2(bx)) >= far, "box {i} skipped");
+                }
+            }
+        }
+        // The same windows at one and at two threads.
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap();
+        let s1 = one.install(|| Sample::draw(&b, &frame));
+        let ids = |s: &Sample| s.windows.iter().map(|w| w.ids.clone()).collect::<Vec<_>>();
+        assert_eq!(ids(&s1), ids(&s));
     }
 
     #[test]

@@ -337,7 +337,7 @@ pub fn choose(boxes: &[Aabb], frame: &Frame, bits: u32) -> Result<AutoChoice, Au
         return Err(AutoError::BadBits(format!("auto:{bits}")));
     }
     let t0 = Instant::now();
-    let mut sample = Sample::draw(boxes, frame);
+    let sample = Sample::draw(boxes, frame);
     let cands = candidates::candidates(frame, &sample.size_stats, bits);
     let backend = estimate_backend();
     let e = frame.extent();
@@ -368,7 +368,6 @@ pub fn choose(boxes: &[Aabb], frame: &Frame, bits: u32) -> Result<AutoChoice, Au
     let tied = within_margin(&sah1, &(0..scored.len()).collect::<Vec<_>>());
     let mut window_boxes = 0;
     let chosen = if tied.len() > 1 && !sample.is_whole() {
-        sample.draw_windows(boxes);
         window_boxes = sample.windows.iter().map(|w| w.len()).sum();
         let win: Vec<Result<estimate::TreeAreas, crate::sort::SortError>> = tied
             .par_iter()
@@ -398,7 +397,6 @@ pub fn choose(boxes: &[Aabb], frame: &Frame, bits: u32) -> Result<AutoChoice, Au
         window_boxes,
         wall_ms: 0.0,
     };
-    c.chosen = chosen;
     c.wall_ms = t0.elapsed().as_secs_f64() * 1e3;
     Ok(c)
 }
