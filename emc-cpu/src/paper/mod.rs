@@ -295,15 +295,16 @@ pub fn measure_all(cfg: &PaperConfig) -> Result<PaperResults, PaperError> {
         .num_threads(cfg.threads)
         .build()
         .map_err(|e| PaperError::Pool(cfg.threads, e.to_string()))?;
-    let scenes = load_scenes(cfg)?;
-    let variants = all_variants();
-    let per_scene = variants.len() * 2 + 1 + sweep::SWEEP_BITS.len();
-    // Untimed work (the sweep's choices) may use every core, between timed runs only.
+    // Untimed work (loading, ray generation, the sweep's choices) may use every core, and
+    // runs only between timed runs: nothing here overlaps a timed build or trace.
     let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
     let untimed = rayon::ThreadPoolBuilder::new()
         .num_threads(cores)
         .build()
         .map_err(|e| PaperError::Pool(cores, e.to_string()))?;
+    let scenes = untimed.install(|| load_scenes(cfg))?;
+    let variants = all_variants();
+    let per_scene = variants.len() * 2 + 1 + sweep::SWEEP_BITS.len();
     let bar = if cfg.progress {
         ProgressBar::with_draw_target(
             Some((scenes.len() * per_scene) as u64),
@@ -312,15 +313,16 @@ pub fn measure_all(cfg: &PaperConfig) -> Result<PaperResults, PaperError> {
     } else {
         ProgressBar::hidden()
     };
-    if let Ok(style) =
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} {msg}")
-    {
+    if let Ok(style) = ProgressStyle::with_template(
+        "{elapsed_precise} [{bar:30}] {pos}/{len} ETA {eta_precise} {msg}",
+    ) {
         bar.set_style(style.progress_chars("=> "));
     }
     let res = cfg.resolution();
     let mut results = Vec::with_capacity(scenes.len());
     for scene in &scenes {
-        let work = pool.install(|| Workload::new(scene, res));
+        bar.set_message(format!("{}: rays", scene.name));
+        let work = untimed.install(|| Workload::new(scene, res));
         let mut configs: Vec<(PaperBuilder, Option<Variant>)> = Vec::new();
         for v in &variants {
             configs.push((PaperBuilder::Lbvh, Some(*v)));
@@ -331,7 +333,15 @@ pub fn measure_all(cfg: &PaperConfig) -> Result<PaperResults, PaperError> {
         let mut image = None;
         for (b, v) in configs {
             let vname = v.map(|v| v.name()).unwrap_or_else(|| "-".into());
-            bar.set_message(format!("{} {} {}", scene.name, b.name(), vname));
+            bar.set_message(format!(
+                "{} ({} tris): {} over {}, {} thread{}",
+                scene.name,
+                scene.triangle_count(),
+                b.name(),
+                vname,
+                cfg.threads,
+                if cfg.threads == 1 { "" } else { "s" }
+            ));
             let wrap = |source| PaperError::Measure {
                 scene: scene.name.clone(),
                 builder: b.name(),
@@ -370,15 +380,23 @@ pub fn measure_all(cfg: &PaperConfig) -> Result<PaperResults, PaperError> {
             bar.inc(1);
         }
         mark_pareto(&mut runs);
-        bar.set_message(format!("{} bit-budget sweep", scene.name));
-        let sw =
-            sweep::measure_sweep(scene, &work, cfg.repeats, &pool, &untimed).map_err(|source| {
-                PaperError::Sweep {
-                    scene: scene.name.clone(),
-                    source,
-                }
-            })?;
-        bar.inc(sweep::SWEEP_BITS.len() as u64);
+        bar.set_message(format!(
+            "{}: bit-budget sweep, choosing layouts",
+            scene.name
+        ));
+        let step = |bits: u32, label: &str| {
+            bar.set_message(format!(
+                "{}: bit-budget sweep, lbvh over {bits}-bit {label}",
+                scene.name
+            ));
+            bar.inc(1);
+        };
+        let sw = sweep::measure_sweep(scene, &work, cfg.repeats, &pool, &untimed, &step).map_err(
+            |source| PaperError::Sweep {
+                scene: scene.name.clone(),
+                source,
+            },
+        )?;
         results.push(SceneResult {
             stem: stem_of(&scene.name),
             name: scene.name.clone(),

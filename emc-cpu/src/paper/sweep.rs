@@ -73,13 +73,15 @@ pub fn sweep_layouts(
 }
 
 /// Measure the sweep of one scene: the choices on `untimed` (any number of threads, nothing
-/// else running), then each length's build and trace on `pool`.
+/// else running), then each length's build and trace on `pool`; `step(bits, label)` is
+/// called once per length as it is done (the progress bar).
 pub fn measure_sweep(
     scene: &Scene,
     work: &Workload,
     repeats: usize,
     pool: &rayon::ThreadPool,
     untimed: &rayon::ThreadPool,
+    step: &dyn Fn(u32, &str),
 ) -> Result<Vec<SweepRow>, SweepError> {
     let layouts = untimed.install(|| -> Result<_, SweepError> {
         let boxes = scene.aabbs();
@@ -115,6 +117,7 @@ pub fn measure_sweep(
             sort_passes: r.sort.passes,
             varying_bits: r.sort.varying_bits,
         });
+        step(bits, &rows[rows.len() - 1].label);
     }
     Ok(rows)
 }
