@@ -388,7 +388,7 @@ impl WindowSpec {
 
     /// Record box `id` (`b`) in every window whose radius holds it: (window, distance, id).
     #[inline(always)]
-    fn hit(&self, b: &Aabb, id: u32, found: &mut Vec<(usize, f64, u32)>) {
+    fn hit(&self, b: &Aabb, id: u32, found: &mut Vec<WindowHit>) {
         let c32 = Vec3A::from(b.min) + Vec3A::from(b.max);
         if !(c32.cmpge(self.union.0) & c32.cmple(self.union.1)).all() {
             return;
@@ -405,7 +405,7 @@ impl WindowSpec {
     }
 
     /// Each window's ids (ascending) from the pass's finds.
-    fn ids(&self, found: Vec<(usize, f64, u32)>) -> Vec<Vec<u32>> {
+    fn ids(&self, found: Vec<WindowHit>) -> Vec<Vec<u32>> {
         let w = self.w;
         let mut by: Vec<Vec<(f64, u32)>> = vec![Vec::new(); self.centres.len()];
         for (wi, d, id) in found {
@@ -428,6 +428,9 @@ impl WindowSpec {
     }
 }
 
+/// A box inside a window's radius: (window, distance, id).
+type WindowHit = (usize, f64, u32);
+
 /// One parallel pass over all boxes: the ids (ascending) of those whose squared diagonal is
 /// above `thr`, or at it when the id's hash is below `cut`; and with `win` the boxes inside
 /// its windows' radii (chunks in order, so neither depends on the thread count).
@@ -436,12 +439,12 @@ fn largest(
     thr: f64,
     cut: u64,
     win: Option<&WindowSpec>,
-) -> (Vec<u32>, Vec<(usize, f64, u32)>) {
+) -> (Vec<u32>, Vec<WindowHit>) {
     // An f32 prefilter below the threshold by more than its rounding (the squared diagonal in
     // f32 is within 3·2^-24 of the f64 one, relatively): only boxes that pass it are
     // compared exactly.
     let pre = (thr * (1.0 - 1e-6)) as f32;
-    let per: Vec<(Vec<u32>, Vec<(usize, f64, u32)>)> = boxes
+    let per: Vec<(Vec<u32>, Vec<WindowHit>)> = boxes
         .par_chunks(PASS_CHUNK)
         .enumerate()
         .map(|(c, chunk)| {

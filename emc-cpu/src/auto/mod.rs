@@ -1,8 +1,9 @@
 //! `--layout auto`: the code layout chosen per scene. A [`LayoutChoice`] is what builds take
 //! (a fixed [`LayoutSpec`] or `auto`); `auto` resolves, once the scene's boxes and frame are
 //! known, to the candidate ([`candidates`]) whose LBVH over a size-stratified sample of the
-//! primitives has the least inner-node area ([`estimate`]; candidates it ties are told apart by
-//! the deep levels of dense windows), with the reason printed by the CLI. emc-core's `LayoutSpec` stays a name over extents only; everything here needs the boxes.
+//! primitives has the least inner-node area ([`estimate`](mod@estimate); candidates it ties
+//! are told apart by the deep levels of dense windows), with the reason printed by the CLI.
+//! emc-core's `LayoutSpec` stays a name over extents only; everything here needs the boxes.
 #![forbid(unsafe_code)]
 
 pub mod candidates;
