@@ -17,7 +17,7 @@ use emc_cpu::cputime::thread_cpu_time;
 fn input() -> (String, Vec<Aabb>, Bvh) {
     let (spec, aabbs) = emc_benches::bathroom_or_mixed();
     let opts = BuildOptions {
-        layout: LayoutSpec::Morton63,
+        layout: LayoutSpec::Morton63.into(),
         builder: Builder::Lbvh,
         threads: 2,
         collapse: CollapseParams::NONE,

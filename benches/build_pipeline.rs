@@ -16,7 +16,7 @@ fn input() -> (String, Vec<Aabb>) {
 
 fn opts(builder: Builder, threads: usize) -> BuildOptions {
     BuildOptions {
-        layout: LayoutSpec::Emc64Var,
+        layout: LayoutSpec::Emc64Var.into(),
         builder,
         threads,
         ..BuildOptions::default()

@@ -695,7 +695,7 @@ fn gap_on_scene(name: &str) {
     let scene = emc_cpu::scene::load(path.to_str().expect("utf-8 path")).expect("scene loads");
     let aabbs = scene.aabbs();
     let opts = BuildOptions {
-        layout: LayoutSpec::Morton63,
+        layout: LayoutSpec::Morton63.into(),
         builder: Builder::Lbvh,
         threads: 2,
         collapse: CollapseParams::NONE,

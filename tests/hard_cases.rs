@@ -129,7 +129,7 @@ fn check_trace(
 fn opts(builder: Builder, layout: LayoutSpec) -> BuildOptions {
     BuildOptions {
         builder,
-        layout,
+        layout: layout.into(),
         threads: 2,
         ..BuildOptions::default()
     }

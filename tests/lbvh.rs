@@ -30,7 +30,7 @@ fn lcg(s: &mut u64) -> u64 {
 
 fn opts(layout: LayoutSpec, builder: Builder, threads: usize, max_leaf: u32) -> BuildOptions {
     BuildOptions {
-        layout,
+        layout: layout.into(),
         builder,
         threads,
         collapse: CollapseParams {

@@ -103,6 +103,7 @@ fn writes_markdown_csv_svg_and_png() {
         "## 2. What accuracy costs in time",
         "## 3. Example codes",
         "## 4. Shared scenes",
+        "## What every bit buys",
         "morton63-cube",
         "★",
     ] {
@@ -122,6 +123,45 @@ fn writes_markdown_csv_svg_and_png() {
             );
             assert!(svg.contains("<circle"), "{p:?} has points");
         }
+        let p = dir.join(format!("{stem}-bits.svg"));
+        let svg = std::fs::read_to_string(&p).expect("bit-budget svg");
+        assert!(svg.contains("code bits"), "{p:?} has its axis");
+        // Every plot: no two text boxes overlap, and on the Pareto plots every run is labelled.
+        let scene = res.scenes.iter().find(|s| s.stem == stem).expect("scene");
+        for plot in ["build-vs-sah", "build-vs-time-to-image", "bits"] {
+            let p = dir.join(format!("{stem}-{plot}.svg"));
+            let svg = std::fs::read_to_string(&p).expect("svg");
+            let texts = emc_cpu::paper::plots::text_boxes(&svg);
+            assert!(texts.len() > 10, "{p:?}: {} texts", texts.len());
+            let clash = emc_cpu::paper::plots::overlapping_texts(&svg);
+            assert!(clash.is_empty(), "{p:?}: overlapping labels {clash:?}");
+            if plot == "bits" {
+                continue;
+            }
+            for r in &scene.runs {
+                let auto = r.variant.is_some_and(|v| v.auto);
+                let want = r.layout_name();
+                let n = |t: &str| {
+                    if auto {
+                        t.starts_with("auto = ")
+                    } else {
+                        t == want
+                    }
+                };
+                let have = texts.iter().filter(|(t, _)| n(t)).count();
+                let runs = scene
+                    .runs
+                    .iter()
+                    .filter(|q| {
+                        q.variant.is_some_and(|v| v.auto) == auto && q.layout_name() == want
+                    })
+                    .count();
+                assert!(
+                    have >= runs,
+                    "{p:?}: {want} labelled {have} times, {runs} runs"
+                );
+            }
+        }
         let png = std::fs::File::open(dir.join(format!("{stem}.png"))).expect("png");
         let img = Image::read_png(std::io::BufReader::new(png)).expect("decodes");
         assert_eq!((img.width, img.height), (24, 24));
@@ -132,7 +172,7 @@ fn writes_markdown_csv_svg_and_png() {
             "{stem}.png shows the scene"
         );
     }
-    assert_eq!(res.files.len(), 3 + 2 * 3);
+    assert_eq!(res.files.len(), 3 + 2 * 4);
     for f in &res.files {
         assert!(f.is_file(), "{f:?}");
     }
@@ -184,6 +224,10 @@ fn csv_uses_the_shared_layout_and_builder_names() {
         layouts.insert(layout.to_string());
         if f[b] == PaperBuilder::BinnedSah.name() {
             assert_eq!(layout, NO_LAYOUT);
+        } else if layout == "auto" {
+            assert!(emc_cpu::auto::LayoutChoice::from_str(layout)
+                .expect("auto")
+                .is_auto());
         } else if let Some(base) = layout.strip_suffix("-cube") {
             assert_eq!(
                 LayoutSpec::from_str(base).expect("layout").to_string(),
@@ -204,6 +248,7 @@ fn csv_uses_the_shared_layout_and_builder_names() {
         "emc64-var",
         "emc64-var-nosize",
         "morton63-cube",
+        "auto",
         "none",
     ]
     .iter()

@@ -152,7 +152,7 @@ fn all_bvhs(tris: &[[Vec3; 3]]) -> Vec<(String, WideBvh)> {
     for (builder, layout, restructure, leaf) in configs {
         let opts = BuildOptions {
             builder: Some(builder),
-            layout,
+            layout: layout.map(Into::into),
             restructure: Some(restructure),
             leaf_size: Some(leaf),
             ..BuildOptions::preset(Preset::Quality)

@@ -9,6 +9,8 @@ use std::str::FromStr;
 use std::time::Instant;
 
 use emc_core::{Aabb, Encoder, Frame, LayoutSpec, Normalization, SceneBounds};
+
+use crate::auto::{AutoChoice, AutoError, LayoutChoice};
 use rayon::prelude::*;
 
 use crate::bvh::apetrei::build_apetrei;
@@ -120,13 +122,16 @@ pub enum BuildError {
     /// The treelet restructuring refused its input.
     #[error(transparent)]
     Atr(#[from] AtrError),
+    /// The automatic layout choice failed.
+    #[error(transparent)]
+    Auto(#[from] AutoError),
 }
 
 /// Options of a build.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct BuildOptions {
-    /// Code layout (ignored by `binned-sah`).
-    pub layout: LayoutSpec,
+    /// Code layout, fixed or `auto` (ignored by `binned-sah`).
+    pub layout: LayoutChoice,
     /// Hierarchy builder.
     pub builder: Builder,
     /// Threads of the local pool (≥ 1).
@@ -139,7 +144,7 @@ impl Default for BuildOptions {
     /// `emc64-var`, `lbvh`, 1 thread, `Ct = 1.2`, `Ci = 1`, leaves of at most 8.
     fn default() -> Self {
         BuildOptions {
-            layout: LayoutSpec::Emc64Var,
+            layout: LayoutChoice::Fixed(LayoutSpec::Emc64Var),
             builder: Builder::Lbvh,
             threads: 1,
             collapse: CollapseParams::default(),
@@ -250,6 +255,10 @@ pub struct BuildReport {
     pub sah_headline: f64,
     /// SAH of the collapsed BVH with the collapse constants.
     pub sah_collapsed: f64,
+    /// What `auto` chose and why (`None` for a fixed layout).
+    pub auto: Option<AutoChoice>,
+    /// Time of the automatic choice (part of the `encode` phase; zero for a fixed layout).
+    pub auto_time: PhaseTime,
 }
 
 impl BuildReport {
@@ -601,7 +610,25 @@ fn build_timed(
         ));
     }
     let ab = &aabbs;
-    let enc = timed.run(Phase::Encode, || encoder_for(ab, &opts.layout))?;
+    let frame = timed.run(Phase::Encode, || {
+        Frame::from_bounds(scene_bounds(ab)?, Normalization::CentroidBox)
+    })?;
+    let (spec, auto, auto_time) = match opts.layout.fixed() {
+        Some(spec) => (spec, None, PhaseTime::default()),
+        None => {
+            // Timed as part of the encode phase, and on its own.
+            let before = timed.phases[Phase::Encode as usize];
+            let (spec, auto) = timed.run(Phase::Encode, || opts.layout.resolve(ab, &frame))?;
+            let after = timed.phases[Phase::Encode as usize];
+            let t = PhaseTime {
+                wall_ms: after.wall_ms - before.wall_ms,
+                cpu_ms: after.cpu_ms - before.cpu_ms,
+                serial_cpu_ms: after.serial_cpu_ms - before.serial_cpu_ms,
+            };
+            (spec, auto, t)
+        }
+    };
+    let enc = Encoder::new(&spec, &frame);
     let layout = Some(enc.layout().to_string());
     let n = ab.len();
     let (bvh, sort, headline) = if enc.layout().fits_u32() {
@@ -625,7 +652,10 @@ fn build_timed(
         (arena.codes64, arena.kbuf64) = (r.3, kbuf);
         (r.0, r.1, r.2)
     };
-    Ok(finish(timed, bvh, aabbs, opts, layout, sort, headline))
+    let mut out = finish(timed, bvh, aabbs, opts, layout, sort, headline);
+    out.report.auto = auto;
+    out.report.auto_time = auto_time;
+    Ok(out)
 }
 
 /// Sort, hierarchy, bounds and collapse (sort scratch `kbuf` and the other buffers from
@@ -734,6 +764,8 @@ fn finish(
         depth,
         sah_headline: headline,
         sah_collapsed: collapsed,
+        auto: None,
+        auto_time: PhaseTime::default(),
     };
     BuildOutput { bvh, aabbs, report }
 }

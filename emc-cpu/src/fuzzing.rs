@@ -251,7 +251,7 @@ pub fn check_build_trace(data: &[u8]) {
         .collect();
     for builder in Builder::ALL {
         let opts = BuildOptions {
-            layout,
+            layout: layout.into(),
             builder,
             threads: 1,
             collapse: CollapseParams {

@@ -4,6 +4,7 @@
 //! emc-core, radix sorting, LBVH builders, SAH metrics and the verbs of the `emc` binary.
 
 pub mod aabbs;
+pub mod auto;
 pub mod buffers;
 pub mod build;
 pub mod bvh;

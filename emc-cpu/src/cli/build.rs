@@ -3,7 +3,8 @@
 #![forbid(unsafe_code)]
 
 use anyhow::{bail, Context};
-use emc_core::LayoutSpec;
+
+use crate::auto::LayoutChoice;
 
 use crate::build::{
     build_scene_in, BuildArena, BuildOptions, BuildOutput, BuildReport, Builder, Phase, PhaseTime,
@@ -16,8 +17,9 @@ use crate::scene::{load_with, SceneOptions};
 pub struct BuildArgs {
     /// A scene file (`.obj`, `.obj.zst`), a shared scene name, or `builtin:NAME`.
     pub scene: String,
-    /// Code layout: morton30, morton63, emc64-sort, emc64-var, emc32-var, emc64-var-nosize or
-    /// custom:PATTERN (optionally followed by :linear).
+    /// Code layout: morton30, morton63, emc64-sort, emc64-var, emc32-var, emc64-var-nosize,
+    /// custom:PATTERN (optionally followed by :linear), or auto (chosen for the scene among
+    /// the 64-bit candidates; auto:N among those of N bits).
     #[arg(long, default_value = "emc64-var")]
     pub layout: String,
     /// Hierarchy builder: lbvh, lbvh-apetrei, binned-sah or atrbvh.
@@ -125,7 +127,7 @@ pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
     if args.vs_threads == Some(0) {
         bail!("--vs-threads must be at least 1");
     }
-    let layout: LayoutSpec = args
+    let layout: LayoutChoice = args
         .layout
         .parse()
         .with_context(|| format!("--layout {}", args.layout))?;
@@ -185,6 +187,26 @@ pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
         r.layout.as_deref().unwrap_or("(none)"),
         r.threads,
     );
+    if let Some(c) = &r.auto {
+        println!("layout auto: {}", c.reason());
+        println!(
+            "  {:<16} {:>12}  pattern (MSB first)",
+            "candidate", "est. SAH"
+        );
+        for (i, sc) in c.scored.iter().enumerate() {
+            println!(
+                "  {:<16} {:>+11.2}%  {}{}",
+                sc.candidate.label,
+                c.change_pct(i),
+                sc.candidate.spec,
+                if i == c.chosen { "  <- chosen" } else { "" }
+            );
+        }
+        println!(
+            "  choice cost: {:.2} ms wall, {:.2} ms CPU (in the encode phase below)",
+            r.auto_time.wall_ms, r.auto_time.cpu_ms
+        );
+    }
     let vs_head = match &base {
         Some(b) => format!(" {:>11}", format!("cpu/{}T cpu", b.median.threads)),
         None => String::new(),

@@ -236,6 +236,8 @@ fn median_phases(v: &[FastTimes]) -> FastTimes {
     };
     FastTimes {
         aabb: m(|t| t.aabb),
+        choose: m(|t| t.choose),
+        layout: v.first().and_then(|t| t.layout),
         encode: m(|t| t.encode),
         sort: m(|t| t.sort),
         tree: m(|t| t.tree),

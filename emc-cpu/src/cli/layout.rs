@@ -12,6 +12,7 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use emc_core::{Aabb, Backend, Encoder, Frame, LayoutSpec, Normalization, QuantizePath};
 
+use crate::auto::LayoutChoice;
 use crate::cputime::{median, thread_cpu_time};
 use crate::encode::{encode_parallel, expand_slice, stream_baseline};
 use crate::scene::{load_with, SceneOptions};
@@ -29,7 +30,8 @@ pub struct LayoutArgs {
     #[arg(long, default_value_t = DEFAULT_PRIMS)]
     pub prims: usize,
     /// Layouts to report (repeatable); default: morton30, morton63, emc64-sort, emc64-var,
-    /// emc32-var, emc64-var-nosize. Also `custom:PATTERN[:linear]`.
+    /// emc32-var, emc64-var-nosize. Also `custom:PATTERN[:linear]`, and `auto` (or `auto:N`):
+    /// the layout chosen for the scene, printed with its reason and every candidate.
     #[arg(long = "layout")]
     pub layouts: Vec<String>,
     /// Threads for loading the scene and for an extra parallel-encode row (wall clock); the
@@ -43,6 +45,14 @@ pub struct LayoutArgs {
     /// quantise for comparison), and report the median of per-round ratios.
     #[arg(long)]
     pub ratios: bool,
+    /// Instead of the encode report: what `--layout auto` picks on each of these scenes (none
+    /// given: every built-in and shared scene) against full LBVH builds of every candidate,
+    /// and what the choice costs against fast-preset builds timed in the same rounds.
+    #[arg(long = "auto-report", num_args = 0.., value_name = "SCENES")]
+    pub auto_report: Option<Vec<String>>,
+    /// With `--auto-report`: also build the fast and balanced presets with and without auto.
+    #[arg(long)]
+    pub presets: bool,
 }
 
 /// One timed kernel of a layout.
@@ -97,8 +107,8 @@ pub fn run(args: &LayoutArgs) -> anyhow::Result<()> {
     if rounds == 0 {
         bail!("--rounds must be at least 1");
     }
-    let specs: Vec<LayoutSpec> = if args.layouts.is_empty() {
-        LayoutSpec::STANDARD.to_vec()
+    let specs: Vec<LayoutChoice> = if args.layouts.is_empty() {
+        LayoutSpec::STANDARD.map(LayoutChoice::Fixed).to_vec()
     } else {
         args.layouts
             .iter()
@@ -109,10 +119,64 @@ pub fn run(args: &LayoutArgs) -> anyhow::Result<()> {
         .num_threads(args.threads)
         .build()
         .context("cannot start the thread pool")?;
+    if let Some(scenes) = &args.auto_report {
+        return pool.install(|| auto_report(args, scenes, rounds));
+    }
     pool.install(|| report(args, &specs, rounds))
 }
 
-fn report(args: &LayoutArgs, specs: &[LayoutSpec], rounds: usize) -> anyhow::Result<()> {
+/// `--auto-report`: one scene at a time, a line per scene as it is done, then the table.
+fn auto_report(args: &LayoutArgs, scenes: &[String], rounds: usize) -> anyhow::Result<()> {
+    use crate::auto::report;
+    let scenes = if scenes.is_empty() {
+        report::default_scenes()
+    } else {
+        scenes.to_vec()
+    };
+    let opts = report::ReportOptions {
+        rounds,
+        presets: args.presets,
+    };
+    let load = report::load_average();
+    let mut rows = Vec::with_capacity(scenes.len());
+    for spec in &scenes {
+        let sopts = SceneOptions {
+            prims: spec.starts_with("builtin:").then_some(args.prims),
+            ..SceneOptions::default()
+        };
+        let scene = load_with(spec, &sopts).with_context(|| format!("loading {spec}"))?;
+        let r = report::measure(&scene, &opts).with_context(|| format!("scene {spec}"))?;
+        println!("{}: {}", r.name, r.choice.reason());
+        for (i, s) in r.choice.scored.iter().enumerate() {
+            println!(
+                "  {:<16} est. {:>+7.2}%  full SAH {:>9.4} ({:>+6.2}% vs {}){}{}",
+                s.candidate.label,
+                r.choice.change_pct(i),
+                r.full[i],
+                (r.full[i] / r.full[r.choice.reference] - 1.0) * 100.0,
+                r.choice.scored[r.choice.reference].candidate.label,
+                if i == r.choice.chosen {
+                    "  <- auto"
+                } else {
+                    ""
+                },
+                if i == r.best() { "  <- best" } else { "" },
+            );
+        }
+        rows.push(r);
+    }
+    println!();
+    println!(
+        "auto report: {} threads, {rounds} alternating rounds (medians, wall ms), load average {} at the start, {} at the end",
+        rayon::current_num_threads(),
+        load.map_or("?".into(), |l| format!("{l:.2}")),
+        report::load_average().map_or("?".into(), |l| format!("{l:.2}")),
+    );
+    print!("{}", report::table(&rows));
+    Ok(())
+}
+
+fn report(args: &LayoutArgs, choices: &[LayoutChoice], rounds: usize) -> anyhow::Result<()> {
     let opts = SceneOptions {
         prims: Some(args.prims),
         ..SceneOptions::default()
@@ -148,8 +212,27 @@ fn report(args: &LayoutArgs, specs: &[LayoutSpec], rounds: usize) -> anyhow::Res
          ratio = median of per-round (kernel / baseline); baseline streams 24 B in + 8 B out \
          per primitive"
     );
+    let mut specs = Vec::with_capacity(choices.len());
+    for c in choices {
+        let (spec, auto) = c.resolve(&boxes, &frame)?;
+        if let Some(a) = auto {
+            println!();
+            println!("{c}: {}", a.reason());
+            for (i, sc) in a.scored.iter().enumerate() {
+                println!(
+                    "  {:<16} est. SAH {:>+8.2}%  {}  {}{}",
+                    sc.candidate.label,
+                    a.change_pct(i),
+                    sc.candidate.spec.resolve(frame.extent()).counts_line(),
+                    sc.candidate.spec,
+                    if i == a.chosen { "  <- chosen" } else { "" }
+                );
+            }
+        }
+        specs.push(spec);
+    }
     let mut out = vec![0u64; n];
-    for spec in specs {
+    for spec in &specs {
         let layout = spec.resolve(frame.extent());
         let dispatched = Encoder::for_layout(layout, &frame);
         println!();

@@ -6,7 +6,6 @@
 use std::time::Instant;
 
 use anyhow::{bail, Context};
-use emc_core::LayoutSpec;
 
 use crate::build::Builder;
 use crate::scene::{load_with, SceneOptions};
@@ -25,7 +24,8 @@ pub struct RenderArgs {
     /// Build preset: fast, balanced or quality (the options below override it).
     #[arg(long, default_value = "quality")]
     pub preset: String,
-    /// Code layout of the LBVH builders (morton30, morton63, emc64-sort, emc64-var, ...).
+    /// Code layout of the LBVH builders (morton30, morton63, emc64-sort, emc64-var, ..., or
+    /// auto: chosen per scene).
     #[arg(long)]
     pub layout: Option<String>,
     /// Hierarchy builder: lbvh, lbvh-apetrei or binned-sah.
@@ -126,7 +126,7 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         "quality" => Preset::Quality,
         p => bail!("unknown preset `{p}` (fast, balanced, quality)"),
     };
-    let layout: Option<LayoutSpec> = args
+    let layout: Option<crate::auto::LayoutChoice> = args
         .layout
         .as_deref()
         .map(|l| l.parse().with_context(|| format!("--layout {l}")))
@@ -183,6 +183,17 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
             .unwrap_or(crate::trace::api::DEFAULT_LEAF_SIZE),
         args.threads
     );
+    if l.is_auto() && b != Builder::BinnedSah {
+        // The choice is a function of the boxes: made again here, untimed, to print it.
+        let boxes = scene.aabbs();
+        let frame = emc_core::Frame::from_bounds(
+            scene.scene_bounds(&boxes)?,
+            emc_core::Normalization::CentroidBox,
+        )?;
+        if let (_, Some(c)) = pool.install(|| l.resolve(&boxes, &frame))? {
+            println!("layout auto: {}", c.reason());
+        }
+    }
     let kind = accel.node_test();
     println!(
         "build (triangles to a traceable {}-wide BVH, first build in this process, thread pool included): {build_ms:.1} ms wall; {} wide nodes, {} leaves, depth {}, {:.1} MiB, SAH {:.2}",

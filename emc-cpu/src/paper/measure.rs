@@ -48,18 +48,37 @@ pub struct Variant {
     pub spec: LayoutSpec,
     /// Normalise positions to the cube of the largest extent instead of the centroid box.
     pub cube: bool,
+    /// `--layout auto`: the layout chosen for the scene inside the timed build (`spec` is
+    /// then unused).
+    pub auto: bool,
 }
 
 impl Variant {
     /// A layout with the default (centroid-box) normalisation.
     pub const fn plain(spec: LayoutSpec) -> Variant {
-        Variant { spec, cube: false }
+        Variant {
+            spec,
+            cube: false,
+            auto: false,
+        }
+    }
+
+    /// `auto`: the scene's layout chosen by [`crate::auto::choose`], the choice timed as part
+    /// of the build.
+    pub const fn auto() -> Variant {
+        Variant {
+            spec: LayoutSpec::Emc64Var,
+            cube: false,
+            auto: true,
+        }
     }
 
     /// The name tables and CSV files use: the shared layout name, `-cube` appended for the
-    /// cube-normalised ablation.
+    /// cube-normalised ablation, `auto` for the automatic choice.
     pub fn name(&self) -> String {
-        if self.cube {
+        if self.auto {
+            "auto".to_string()
+        } else if self.cube {
             format!("{}-cube", self.spec)
         } else {
             self.spec.to_string()
@@ -79,7 +98,9 @@ pub fn all_variants() -> Vec<Variant> {
     v.push(Variant {
         spec: LayoutSpec::Morton63,
         cube: true,
+        auto: false,
     });
+    v.push(Variant::auto());
     v
 }
 
@@ -126,7 +147,7 @@ pub fn build(
 ) -> Result<Built, MeasureError> {
     let threads = pool.current_num_threads();
     let collapse = CollapseParams::default();
-    if variant.cube {
+    if variant.cube && !variant.auto {
         return build_cube(scene, builder, variant.spec, pool);
     }
     let b = match builder {
@@ -137,7 +158,11 @@ pub fn build(
     let out = build_scene(
         scene,
         &BuildOptions {
-            layout: variant.spec,
+            layout: if variant.auto {
+                crate::auto::AUTO
+            } else {
+                variant.spec.into()
+            },
             builder: b,
             threads,
             collapse,

@@ -7,6 +7,7 @@ pub mod csv;
 pub mod measure;
 pub mod pareto;
 pub mod plots;
+pub mod sweep;
 pub mod tables;
 
 use std::path::{Path, PathBuf};
@@ -135,6 +136,14 @@ pub enum PaperError {
         /// Why.
         msg: String,
     },
+    /// The bit-budget sweep failed.
+    #[error("{scene}, bit-budget sweep: {source}")]
+    Sweep {
+        /// Scene name.
+        scene: String,
+        /// Why.
+        source: sweep::SweepError,
+    },
     /// An image could not be encoded.
     #[error("writing {path}: {source}")]
     Image {
@@ -205,6 +214,8 @@ pub struct SceneResult {
     pub runs: Vec<Run>,
     /// The primary rays shaded by facing normal (`atrbvh`, `emc64-var` BVH).
     pub image: Option<crate::trace::image::Image>,
+    /// The bit-budget sweep (plain LBVH, `auto:N` per length).
+    pub sweep: Vec<sweep::SweepRow>,
 }
 
 impl SceneResult {
@@ -284,9 +295,16 @@ pub fn measure_all(cfg: &PaperConfig) -> Result<PaperResults, PaperError> {
         .num_threads(cfg.threads)
         .build()
         .map_err(|e| PaperError::Pool(cfg.threads, e.to_string()))?;
-    let scenes = load_scenes(cfg)?;
+    // Untimed work (loading, ray generation, the sweep's choices) may use every core, and
+    // runs only between timed runs: nothing here overlaps a timed build or trace.
+    let cores = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let untimed = rayon::ThreadPoolBuilder::new()
+        .num_threads(cores)
+        .build()
+        .map_err(|e| PaperError::Pool(cores, e.to_string()))?;
+    let scenes = untimed.install(|| load_scenes(cfg))?;
     let variants = all_variants();
-    let per_scene = variants.len() * 2 + 1;
+    let per_scene = variants.len() * 2 + 1 + sweep::SWEEP_BITS.len();
     let bar = if cfg.progress {
         ProgressBar::with_draw_target(
             Some((scenes.len() * per_scene) as u64),
@@ -295,15 +313,16 @@ pub fn measure_all(cfg: &PaperConfig) -> Result<PaperResults, PaperError> {
     } else {
         ProgressBar::hidden()
     };
-    if let Ok(style) =
-        ProgressStyle::with_template("{elapsed_precise} [{bar:30}] {pos}/{len} {msg}")
-    {
+    if let Ok(style) = ProgressStyle::with_template(
+        "{elapsed_precise} [{bar:30}] {pos}/{len} ETA {eta_precise} {msg}",
+    ) {
         bar.set_style(style.progress_chars("=> "));
     }
     let res = cfg.resolution();
     let mut results = Vec::with_capacity(scenes.len());
     for scene in &scenes {
-        let work = pool.install(|| Workload::new(scene, res));
+        bar.set_message(format!("{}: rays", scene.name));
+        let work = untimed.install(|| Workload::new(scene, res));
         let mut configs: Vec<(PaperBuilder, Option<Variant>)> = Vec::new();
         for v in &variants {
             configs.push((PaperBuilder::Lbvh, Some(*v)));
@@ -314,7 +333,15 @@ pub fn measure_all(cfg: &PaperConfig) -> Result<PaperResults, PaperError> {
         let mut image = None;
         for (b, v) in configs {
             let vname = v.map(|v| v.name()).unwrap_or_else(|| "-".into());
-            bar.set_message(format!("{} {} {}", scene.name, b.name(), vname));
+            bar.set_message(format!(
+                "{} ({} tris): {} over {}, {} thread{}",
+                scene.name,
+                scene.triangle_count(),
+                b.name(),
+                vname,
+                cfg.threads,
+                if cfg.threads == 1 { "" } else { "s" }
+            ));
             let wrap = |source| PaperError::Measure {
                 scene: scene.name.clone(),
                 builder: b.name(),
@@ -353,6 +380,23 @@ pub fn measure_all(cfg: &PaperConfig) -> Result<PaperResults, PaperError> {
             bar.inc(1);
         }
         mark_pareto(&mut runs);
+        bar.set_message(format!(
+            "{}: bit-budget sweep, choosing layouts",
+            scene.name
+        ));
+        let step = |bits: u32, label: &str| {
+            bar.set_message(format!(
+                "{}: bit-budget sweep, lbvh over {bits}-bit {label}",
+                scene.name
+            ));
+            bar.inc(1);
+        };
+        let sw = sweep::measure_sweep(scene, &work, cfg.repeats, &pool, &untimed, &step).map_err(
+            |source| PaperError::Sweep {
+                scene: scene.name.clone(),
+                source,
+            },
+        )?;
         results.push(SceneResult {
             stem: stem_of(&scene.name),
             name: scene.name.clone(),
@@ -360,6 +404,7 @@ pub fn measure_all(cfg: &PaperConfig) -> Result<PaperResults, PaperError> {
             res,
             runs,
             image,
+            sweep: sw,
         });
     }
     bar.finish_and_clear();
@@ -407,7 +452,12 @@ pub fn run(cfg: &PaperConfig) -> Result<PaperResults, PaperError> {
         source,
     })?;
     let mut files = Vec::new();
-    write(out.join("paper.md"), &tables::markdown(&res), &mut files)?;
+    let mut md = tables::markdown(&res);
+    md.push_str("\n## What every bit buys\n\nPlain LBVH per code length, the layout `auto:N` picks; thread-CPU ms per phase; the radix sort orders only the key bytes in which codes differ.\n");
+    for s in &res.scenes {
+        md.push_str(&sweep::sweep_markdown(&s.name, &s.sweep));
+    }
+    write(out.join("paper.md"), &md, &mut files)?;
     write(out.join("runs.csv"), &csv::runs_csv(&res), &mut files)?;
     write(
         out.join("seed-tables.csv"),
@@ -420,6 +470,9 @@ pub fn run(cfg: &PaperConfig) -> Result<PaperResults, PaperError> {
         files.push(p);
         let p = out.join(format!("{}-build-vs-time-to-image.svg", s.stem));
         plots::plot_scene(s, plots::Axis::TimeToImage, &p)?;
+        files.push(p);
+        let p = out.join(format!("{}-bits.svg", s.stem));
+        plots::plot_sweep(s, &p)?;
         files.push(p);
     }
     for s in &res.scenes {

@@ -36,6 +36,8 @@ use rayon::prelude::*;
 
 use emc_core::{Aabb, LayoutSpec};
 
+use crate::auto::LayoutChoice;
+
 use crate::build::{build_aabbs_inline, Builder};
 use crate::bvh::atrbvh::{restructure_built as restructure_atr, AtrConfig};
 use crate::bvh::collapse::collapse_bvh;
@@ -65,8 +67,9 @@ pub enum Preset {
 pub struct BuildOptions {
     /// The preset that fills in everything left `None`.
     pub preset: Preset,
-    /// Code layout of the LBVH builders (ignored by `binned-sah`).
-    pub layout: Option<LayoutSpec>,
+    /// Code layout of the LBVH builders, fixed or [`crate::auto::AUTO`] (chosen per scene,
+    /// see [`crate::auto`]); ignored by `binned-sah`.
+    pub layout: Option<LayoutChoice>,
     /// Hierarchy builder.
     pub builder: Option<Builder>,
     /// Run treelet restructuring (`atrbvh`) on the binary tree before the leaf collapse.
@@ -90,7 +93,7 @@ impl BuildOptions {
     }
 
     /// The builder, layout and restructuring the preset and overrides resolve to.
-    pub fn resolve(&self) -> (Builder, LayoutSpec, bool) {
+    pub fn resolve(&self) -> (Builder, LayoutChoice, bool) {
         let (b, l, r) = match self.preset {
             Preset::Fast => (Builder::Lbvh, LayoutSpec::Emc32Var, false),
             Preset::Balanced => (Builder::Lbvh, LayoutSpec::Emc64Var, true),
@@ -98,7 +101,7 @@ impl BuildOptions {
         };
         (
             self.builder.unwrap_or(b),
-            self.layout.unwrap_or(l),
+            self.layout.unwrap_or(LayoutChoice::Fixed(l)),
             self.restructure.unwrap_or(r),
         )
     }

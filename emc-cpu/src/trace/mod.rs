@@ -68,6 +68,9 @@ pub enum TraceError {
     /// The BVH2 pipeline (LBVH or binned SAH) refused its input.
     #[error("BVH build failed: {0}")]
     Build(#[source] crate::build::BuildError),
+    /// The automatic layout choice failed.
+    #[error("choosing the layout failed: {0}")]
+    Layout(#[source] crate::auto::AutoError),
     /// The treelet restructuring refused its input.
     #[error("treelet restructuring failed: {0}")]
     Restructure(#[source] crate::bvh::atrbvh::AtrError),

@@ -736,6 +736,10 @@ pub struct FastScratch<const W: usize> {
 pub struct FastTimes {
     /// Index check, triangle boxes and scene bounds.
     pub aabb: f64,
+    /// The `auto` layout choice (0 for a fixed layout; counted in `encode` too).
+    pub choose: f64,
+    /// The layout `auto` chose (`None` for a fixed layout).
+    pub layout: Option<emc_core::LayoutSpec>,
     /// Encoder set-up and codes.
     pub encode: f64,
     /// Radix sort.
@@ -750,7 +754,7 @@ pub struct FastTimes {
 pub fn build_fast<const W: usize>(
     vertices: &[Vec3],
     indices: &[[u32; 3]],
-    layout: &emc_core::LayoutSpec,
+    layout: &crate::auto::LayoutChoice,
     scratch: &mut FastScratch<W>,
     nodes: &mut Vec<WideNodeN<W>>,
     packets: &mut Vec<TriPacket>,
@@ -782,7 +786,12 @@ pub fn build_fast<const W: usize>(
     times.aabb = (t1 - t0).as_secs_f64() * 1e3;
     let frame = emc_core::Frame::from_bounds(bounds, emc_core::Normalization::CentroidBox)
         .map_err(TraceError::Encode)?;
-    let enc = emc_core::Encoder::new(layout, &frame);
+    let (spec, _) = layout
+        .resolve(&scratch.aabbs, &frame)
+        .map_err(TraceError::Layout)?;
+    times.choose = t1.elapsed().as_secs_f64() * 1e3;
+    times.layout = layout.is_auto().then_some(spec);
+    let enc = emc_core::Encoder::new(&spec, &frame);
     let s = &mut *scratch;
     let tree = if enc.layout().fits_u32() {
         crate::buffers::resized(&mut s.codes32, n, 0);
