@@ -16,10 +16,10 @@ use emc_core::SizeTransform;
 
 use crate::datapath::{Token, FP_LATENCY};
 use crate::fixed::{compare_key, exp_add, float_to_fixed};
+use crate::routing::{morton_wires, permute, Benes, Crossbar, Permutation};
 use crate::rtl::arith;
 use crate::rtl::net::{eq, gt, le, mux, pick, shl, shr, Mod, Sig, E};
 use crate::rtl::ImageWord;
-use crate::routing::{morton_wires, permute, Benes, Crossbar, Permutation};
 
 /// Axis letters of names.
 pub const AX: [char; 3] = ['x', 'y', 'z'];
@@ -220,7 +220,10 @@ impl Signals {
 /// A block written alone as a module (what it reads are inputs, what it writes outputs),
 /// for pricing it on its own; `qs_bits` is the quantised size's width.
 pub fn alone(b: &dyn Block, qs_bits: u32) -> Mod {
-    let mut m = Mod::new(&format!("stage_{}", b.name().replace(['.', '→', '^', '×'], "_")));
+    let mut m = Mod::new(&format!(
+        "stage_{}",
+        b.name().replace(['.', '→', '^', '×'], "_")
+    ));
     let widths = b.config().into_iter().map(|w| (w.name, w.width)).collect();
     let mut s = Signals::alone(qs_bits.max(1), widths);
     b.emit(&mut m, &mut s);
@@ -287,7 +290,11 @@ pub fn f2fix(m: &mut Mod, nan: bool) {
     let max = m.wire(
         "max",
         64,
-        mux(eq(&n, k(7, 64)), Sig::fill(64, true), shl(k(64, 1), &n) - k(64, 1)),
+        mux(
+            eq(&n, k(7, 64)),
+            Sig::fill(64, true),
+            shl(k(64, 1), &n) - k(64, 1),
+        ),
     );
     let sh = m.wire(
         "sh",
@@ -343,7 +350,9 @@ fn key(m: &mut Mod, d2: &Sig) -> Sig {
 /// step `k` compares the key with the threshold at index `{decided bits, 1, 0…}`, chosen from
 /// the `2^k` candidates by a multiplexer tree on the decided bits.
 pub fn search(m: &mut Mod, sbits: u32) {
-    m.comment(&format!("emc_search: {sbits}-step binary search over the size thresholds."));
+    m.comment(&format!(
+        "emc_search: {sbits}-step binary search over the size thresholds."
+    ));
     m.clock();
     let d2 = m.input("d2", 64);
     let t = (1u32 << sbits) - 1;
@@ -370,7 +379,11 @@ pub fn search(m: &mut Mod, sbits: u32) {
         let g = m.wire(&format!("ge{st}"), 1, le(&sel, &key0));
         spos = Some(match &spos {
             None => m.reg("spos1", 1, &g),
-            Some(p) => m.reg(&format!("spos{}", st + 1), st + 1, Sig::cat(&[p.clone(), g])),
+            Some(p) => m.reg(
+                &format!("spos{}", st + 1),
+                st + 1,
+                Sig::cat(&[p.clone(), g]),
+            ),
         });
         if st + 1 < sbits {
             key0 = m.reg(&format!("key{}", st + 1), 63, &key0);
@@ -381,7 +394,10 @@ pub fn search(m: &mut Mod, sbits: u32) {
 
 /// The comparator bank and population count (module `emc_bank`, two register levels).
 pub fn bank(m: &mut Mod, sbits: u32) {
-    m.comment(&format!("emc_bank: {} comparators and a population count.", (1u32 << sbits) - 1));
+    m.comment(&format!(
+        "emc_bank: {} comparators and a population count.",
+        (1u32 << sbits) - 1
+    ));
     m.clock();
     let d2 = m.input("d2", 64);
     let t = (1u32 << sbits) - 1;
@@ -405,7 +421,13 @@ pub fn bank(m: &mut Mod, sbits: u32) {
 /// Beneš columns `cols` (module `emc_benes` for the whole network): column `i` exchanges lanes
 /// `p` and `p + d` under its control bits, each switch a pair of 2:1 multiplexers.
 pub fn benes(m: &mut Mod, b: &Benes, cols: core::ops::Range<usize>) {
-    m.comment(&format!("Beneš columns {}..{} of {} ({} lanes).", cols.start, cols.end, b.columns(), b.lanes()));
+    m.comment(&format!(
+        "Beneš columns {}..{} of {} ({} lanes).",
+        cols.start,
+        cols.end,
+        b.columns(),
+        b.lanes()
+    ));
     let mut w = m.input("w", 64);
     let lanes = b.lanes();
     let ctl: Vec<(usize, Sig)> = cols
@@ -425,7 +447,9 @@ pub fn benes(m: &mut Mod, b: &Benes, cols: core::ops::Range<usize>) {
         w = m.wire(
             &format!("bw{i}"),
             64,
-            (&w & !(&bm | &bh)) | (shr(&w, k(7, d as u128)) & &bm) | (shl(&w, k(7, d as u128)) & &bh),
+            (&w & !(&bm | &bh))
+                | (shr(&w, k(7, d as u128)) & &bm)
+                | (shl(&w, k(7, d as u128)) & &bh),
         );
     }
     m.output("y", 64, &w);
@@ -433,7 +457,9 @@ pub fn benes(m: &mut Mod, b: &Benes, cols: core::ops::Range<usize>) {
 
 /// The crossbar (module `emc_crossbar`): every output lane picks a packed bit by its select.
 pub fn crossbar(m: &mut Mod, lanes: u32) {
-    m.comment(&format!("emc_crossbar: {lanes}x{lanes}, one select per output lane."));
+    m.comment(&format!(
+        "emc_crossbar: {lanes}x{lanes}, one select per output lane."
+    ));
     let w = m.input("w", 64);
     let sb = crate::rtl::sel_bits(lanes);
     let per = crate::rtl::sels_per_word(lanes);
@@ -505,7 +531,11 @@ impl Block for Unpack {
     fn emit(&self, m: &mut Mod, s: &mut Signals) {
         let inb = s.cfg(m, "in_box");
         for &a in &self.need {
-            let lo = m.reg(&format!("lo_{}", AX[a]), 32, inb.at(32 * a as u32 + 31, 32 * a as u32));
+            let lo = m.reg(
+                &format!("lo_{}", AX[a]),
+                32,
+                inb.at(32 * a as u32 + 31, 32 * a as u32),
+            );
             let hi = m.reg(
                 &format!("hi_{}", AX[a]),
                 32,
@@ -539,7 +569,11 @@ impl Block for Centre {
         let conv = 2 * if self.size { 3 } else { axes };
         format!(
             "{conv}× binary32→binary64, {axes}× fp64 add (lo+hi){}",
-            if self.size { " ∥ size: 3× fp64 sub (hi−lo)" } else { "" }
+            if self.size {
+                " ∥ size: 3× fp64 sub (hi−lo)"
+            } else {
+                ""
+            }
         )
     }
     fn eval(&self, t: &mut Token) {
@@ -608,7 +642,11 @@ impl Block for Offset {
         let axes = self.axis_on.iter().filter(|&&o| o).count();
         format!(
             "{axes}× fp64 sub (−2·origin){}",
-            if self.size { " ∥ size: 3× fp64 mul (Δ²)" } else { "" }
+            if self.size {
+                " ∥ size: 3× fp64 mul (Δ²)"
+            } else {
+                ""
+            }
         )
     }
     fn eval(&self, t: &mut Token) {
@@ -685,7 +723,11 @@ impl Block for Scale {
         let axes = self.axis_on.iter().filter(|&&o| o).count();
         format!(
             "{axes}× fp64 mul (×scale/2){}",
-            if self.size { " ∥ size: 1× fp64 add" } else { "" }
+            if self.size {
+                " ∥ size: 1× fp64 add"
+            } else {
+                ""
+            }
         )
     }
     fn eval(&self, t: &mut Token) {
@@ -773,7 +815,11 @@ impl Block for Fix {
         let axes = self.axis_on.iter().filter(|&&o| o).count();
         format!(
             "{axes}× float→fixed+clamp (64-bit field shifter){}",
-            if self.size { " ∥ size: 1× fp64 add (d²)" } else { "" }
+            if self.size {
+                " ∥ size: 1× fp64 add (d²)"
+            } else {
+                ""
+            }
         )
     }
     fn eval(&self, t: &mut Token) {
@@ -1076,9 +1122,12 @@ impl Block for Formula {
                 let a = s.get(m, Field::Sd);
                 let d = s.cfg(m, "diag");
                 let y = m
-                    .inst("emc_fp64_div", "quot", &[("a", &a), ("b", &d)], &|c: &mut Mod| {
-                        arith::fp64_div(c, st)
-                    })
+                    .inst(
+                        "emc_fp64_div",
+                        "quot",
+                        &[("a", &a), ("b", &d)],
+                        &|c: &mut Mod| arith::fp64_div(c, st),
+                    )
                     .remove(0);
                 s.put(Field::Sd, y, self.stages);
             }
@@ -1102,9 +1151,12 @@ impl Block for Formula {
                 let sd = s.get(m, Field::Sd);
                 let n = k(7, self.bits as u128);
                 let q = m
-                    .inst("emc_f2fix_nan", "fxs", &[("v", &sd), ("n", &n)], &|c: &mut Mod| {
-                        f2fix(c, true)
-                    })
+                    .inst(
+                        "emc_f2fix_nan",
+                        "fxs",
+                        &[("v", &sd), ("n", &n)],
+                        &|c: &mut Mod| f2fix(c, true),
+                    )
                     .remove(0);
                 let q = m.reg("qsize", self.bits, q.at(self.bits - 1, 0));
                 s.put(Field::Qs, q, 1);
@@ -1124,8 +1176,7 @@ impl Block for Formula {
     }
     fn fp_ops(&self) -> FpOps {
         FpOps {
-            sqrt_div: matches!(self.op, FormulaOp::Sqrt | FormulaOp::Sqrt2 | FormulaOp::Div)
-                as u32,
+            sqrt_div: matches!(self.op, FormulaOp::Sqrt | FormulaOp::Sqrt2 | FormulaOp::Div) as u32,
             ..FpOps::default()
         }
     }
@@ -1269,10 +1320,8 @@ impl Block for Route {
                 ins.extend(ctl.iter().map(|(n, v)| (n.as_str(), v)));
                 let n = net.clone();
                 let name = format!("bn{}", m.uid());
-                m.inst(&module, &name, &ins, &move |c: &mut Mod| {
-                    benes(c, &n, f..t)
-                })
-                .remove(0)
+                m.inst(&module, &name, &ins, &move |c: &mut Mod| benes(c, &n, f..t))
+                    .remove(0)
             }
             RouteNet::Crossbar(x) => {
                 let lanes = &x.lanes();
@@ -1283,8 +1332,10 @@ impl Block for Route {
                 let mut ins: Vec<(&str, &Sig)> = vec![("w", &w)];
                 ins.extend(sel.iter().map(|(n, v)| (n.as_str(), v)));
                 let l = *lanes;
-                m.inst("emc_crossbar", "xb", &ins, &move |c: &mut Mod| crossbar(c, l))
-                    .remove(0)
+                m.inst("emc_crossbar", "xb", &ins, &move |c: &mut Mod| {
+                    crossbar(c, l)
+                })
+                .remove(0)
             }
         };
         let name = format!("route{}", m.uid());
@@ -1397,7 +1448,12 @@ impl Block for Pack {
                                 && p < self.offset[c] + self.bits[c]
                         })
                         .expect("a fixed pattern's packed bit lies in a field");
-                    bits.push(vals[c].as_ref().expect("field read").bit(p - self.offset[c]));
+                    bits.push(
+                        vals[c]
+                            .as_ref()
+                            .expect("field read")
+                            .bit(p - self.offset[c]),
+                    );
                 }
                 m.wire("wired", 64, Sig::cat(&bits))
             }

@@ -26,7 +26,9 @@ fn k(w: u32, v: u128) -> Sig {
 /// Stage 1 swaps by magnitude and aligns the smaller significand with guard, round and sticky
 /// bits; stage 2 adds or subtracts and counts leading zeros; stage 3 normalises and rounds.
 pub fn fp64_add(m: &mut Mod) {
-    m.comment("emc_fp64_add: y = a + b (sub = 0) or a - b (sub = 1), round to nearest even, 3 stages.");
+    m.comment(
+        "emc_fp64_add: y = a + b (sub = 0) or a - b (sub = 1), round to nearest even, 3 stages.",
+    );
     m.clock();
     let a = m.input("a", 64);
     let b = m.input("b", 64);
@@ -37,12 +39,23 @@ pub fn fp64_add(m: &mut Mod) {
     let eb = m.wire("eb", 11, b.at(62, 52));
     let za = m.wire("za", 1, eq(&ea, k(11, 0)));
     let zb = m.wire("zb", 1, eq(&eb, k(11, 0)));
-    let ma = m.wire("ma", 53, mux(&za, k(53, 0), Sig::cat(&[k(1, 1), a.at(51, 0)])));
-    let mb = m.wire("mb", 53, mux(&zb, k(53, 0), Sig::cat(&[k(1, 1), b.at(51, 0)])));
+    let ma = m.wire(
+        "ma",
+        53,
+        mux(&za, k(53, 0), Sig::cat(&[k(1, 1), a.at(51, 0)])),
+    );
+    let mb = m.wire(
+        "mb",
+        53,
+        mux(&zb, k(53, 0), Sig::cat(&[k(1, 1), b.at(51, 0)])),
+    );
     let swap = m.wire(
         "swap",
         1,
-        gt(Sig::cat(&[eb.clone(), mb.clone()]), Sig::cat(&[ea.clone(), ma.clone()])),
+        gt(
+            Sig::cat(&[eb.clone(), mb.clone()]),
+            Sig::cat(&[ea.clone(), ma.clone()]),
+        ),
     );
     let el = m.wire("el", 11, mux(&swap, &eb, &ea));
     let es = m.wire("es", 11, mux(&swap, &ea, &eb));
@@ -80,7 +93,11 @@ pub fn fp64_add(m: &mut Mod) {
     // the difference keeps its leading one at bit 54 or above (a zero sum is flagged apart).
     let mut lz = m.wire("lz57", 7, k(7, 57));
     for i in 2..57u32 {
-        lz = m.wire(&format!("lz{i}"), 7, mux(sum.bit(i), k(7, 56 - i as u128), &lz));
+        lz = m.wire(
+            &format!("lz{i}"),
+            7,
+            mux(sum.bit(i), k(7, 56 - i as u128), &lz),
+        );
     }
     let s2_sl = m.reg("s2_sl", 1, &s1_sl);
     let s2_bz = m.reg("s2_bz", 1, &s1_bz);
@@ -93,7 +110,10 @@ pub fn fp64_add(m: &mut Mod) {
         56,
         mux(
             eq(&s2_lz, k(7, 0)),
-            cat(vec![s2_sum.at(56, 2).into(), &s2_sum.bit(1) | &s2_sum.bit(0)]),
+            cat(vec![
+                s2_sum.at(56, 2).into(),
+                &s2_sum.bit(1) | &s2_sum.bit(0),
+            ]),
             &nsh,
         ),
     );
@@ -103,7 +123,11 @@ pub fn fp64_add(m: &mut Mod) {
         E::from(Sig::cat(&[k(2, 0), s2_el])) + k(13, 1) - Sig::cat(&[k(6, 0), s2_lz]),
     );
     let mt = m.wire("mt", 53, nrm.at(55, 3));
-    let up = m.wire("up", 1, &nrm.bit(2) & (&nrm.bit(1) | &nrm.bit(0) | mt.bit(0)));
+    let up = m.wire(
+        "up",
+        1,
+        &nrm.bit(2) & (&nrm.bit(1) | &nrm.bit(0) | mt.bit(0)),
+    );
     let mr = m.wire(
         "mr",
         54,
@@ -115,7 +139,11 @@ pub fn fp64_add(m: &mut Mod) {
     let res = m.wire(
         "res",
         64,
-        mux(&s2_bz | &zero, k(64, 0), Sig::cat(&[s2_sl, ex2.at(10, 0), fr])),
+        mux(
+            &s2_bz | &zero,
+            k(64, 0),
+            Sig::cat(&[s2_sl, ex2.at(10, 0), fr]),
+        ),
     );
     let s3 = m.reg("s3", 64, &res);
     m.output("y", 64, &s3);
@@ -173,7 +201,9 @@ pub fn fp64_mul(m: &mut Mod) {
     let ex = m.wire(
         "ex",
         13,
-        E::from(&s2_es) - k(13, 1023) + Sig::cat(&[k(12, 0), hi]) + Sig::cat(&[k(12, 0), mr.bit(53)]),
+        E::from(&s2_es) - k(13, 1023)
+            + Sig::cat(&[k(12, 0), hi])
+            + Sig::cat(&[k(12, 0), mr.bit(53)]),
     );
     let fr = m.wire("fr", 52, mux(mr.bit(53), mr.at(52, 1), mr.at(51, 0)));
     let res = m.wire(
@@ -267,7 +297,11 @@ pub fn fp64_div(m: &mut Mod, stages: usize) {
             );
             let gei = m.wire(&format!("ge{i}"), 1, !&df.bit(55));
             let rs = m.wire(&format!("rs{i}"), 55, mux(&gei, df.at(54, 0), &r));
-            r = m.wire(&format!("r{}", i + 1), 55, Sig::cat(&[rs.at(53, 0), k(1, 0)]));
+            r = m.wire(
+                &format!("r{}", i + 1),
+                55,
+                Sig::cat(&[rs.at(53, 0), k(1, 0)]),
+            );
             q = m.wire(&format!("q{}", i + 1), 55, Sig::cat(&[q.at(53, 0), gei]));
         }
         if st + 1 < stages {
@@ -322,7 +356,10 @@ pub fn fp64_sqrt(m: &mut Mod, stages: usize) {
     let mut ex = m.wire(
         "ex",
         13,
-        shr(E::from(Sig::cat(&[k(2, 0), e.clone()])) + k(13, 1023), k(1, 1)),
+        shr(
+            E::from(Sig::cat(&[k(2, 0), e.clone()])) + k(13, 1023),
+            k(1, 1),
+        ),
     );
     let mut sp = m.wire(
         "sp",
@@ -346,7 +383,11 @@ pub fn fp64_sqrt(m: &mut Mod, stages: usize) {
                 k(2, 0)
             };
             let rp = m.wire(&format!("rp{i}"), 59, Sig::cat(&[rm.at(56, 0), pair]));
-            let tr = m.wire(&format!("tr{i}"), 59, Sig::cat(&[k(2, 0), t.clone(), k(2, 1)]));
+            let tr = m.wire(
+                &format!("tr{i}"),
+                59,
+                Sig::cat(&[k(2, 0), t.clone(), k(2, 1)]),
+            );
             let df = m.wire(
                 &format!("df{i}"),
                 60,

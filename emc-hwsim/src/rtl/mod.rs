@@ -66,7 +66,10 @@ pub(crate) fn sels_per_word(lanes: u32) -> u32 {
 
 /// The register image of a unit, in configuration-bus address order: every stage's words.
 pub fn image(unit: &Unit) -> Vec<ImageWord> {
-    unit.stages().iter().flat_map(|s| s.block.config()).collect()
+    unit.stages()
+        .iter()
+        .flat_map(|s| s.block.config())
+        .collect()
 }
 
 /// The files of an emitted unit.

@@ -279,8 +279,7 @@ impl Graph {
 
     /// `a | (b & c)`.
     pub fn ao21(&mut self, a: Bit, b: Bit, c: Bit) -> Bit {
-        if a == Bit::ONE || b.is_const() || c.is_const() || a.is_const() || b == c || b == c.inv()
-        {
+        if a == Bit::ONE || b.is_const() || c.is_const() || a.is_const() || b == c || b == c.inv() {
             let t = self.and(b, c);
             return self.or(a, t);
         }
@@ -363,7 +362,11 @@ impl Graph {
         while v.len() > 1 {
             let mut n = Vec::with_capacity(v.len().div_ceil(2));
             for c in v.chunks(2) {
-                n.push(if c.len() == 2 { self.or(c[0], c[1]) } else { c[0] });
+                n.push(if c.len() == 2 {
+                    self.or(c[0], c[1])
+                } else {
+                    c[0]
+                });
             }
             v = n;
         }
@@ -693,7 +696,11 @@ impl Sig {
 
     /// Bits `hi..=lo`.
     pub fn at(&self, hi: u32, lo: u32) -> Sig {
-        assert!(hi >= lo && hi < self.w(), "slice [{hi}:{lo}] of {} bits", self.w());
+        assert!(
+            hi >= lo && hi < self.w(),
+            "slice [{hi}:{lo}] of {} bits",
+            self.w()
+        );
         let mut parts = Vec::new();
         let mut top = self.w(); // exclusive top of the current part, counted from bit 0
         for p in &self.parts {
@@ -1216,7 +1223,10 @@ impl Mod {
         d.truncate(w as usize);
         let q: Vec<Bit> = d.iter().map(|&b| self.graph.dff(b)).collect();
         self.line(&format!("{};", decl("reg", w, name)));
-        self.line(&format!("always @(posedge clk) {name} <= {};", e.text(true)));
+        self.line(&format!(
+            "always @(posedge clk) {name} <= {};",
+            e.text(true)
+        ));
         Sig::named(name, q)
     }
 
@@ -1373,7 +1383,12 @@ mod tests {
 
     /// Evaluate the gate network on input values (combinational part only).
     fn eval(g: &Graph, inputs: &HashMap<usize, bool>, b: Bit) -> bool {
-        fn go(g: &Graph, inputs: &HashMap<usize, bool>, b: Bit, memo: &mut HashMap<usize, bool>) -> bool {
+        fn go(
+            g: &Graph,
+            inputs: &HashMap<usize, bool>,
+            b: Bit,
+            memo: &mut HashMap<usize, bool>,
+        ) -> bool {
             let n = b.net();
             let v = if n == 0 {
                 false
@@ -1430,7 +1445,11 @@ mod tests {
             let b = m.input("b", wb);
             let n = m.input("n", 5);
             let mut inp = HashMap::new();
-            let (va, vb, vn) = (rnd() as u128 & ((1 << wa) - 1), rnd() as u128 & ((1 << wb) - 1), rnd() as u128 & 31);
+            let (va, vb, vn) = (
+                rnd() as u128 & ((1 << wa) - 1),
+                rnd() as u128 & ((1 << wb) - 1),
+                rnd() as u128 & 31,
+            );
             for (sig, v) in [(&a, va), (&b, vb), (&n, vn)] {
                 for (i, bit) in sig.bits().iter().enumerate() {
                     inp.insert(bit.net(), (v >> i) & 1 == 1);
@@ -1456,13 +1475,21 @@ mod tests {
                 (ne(&a, &b), (va != vb) as u128),
                 (red_or(&a), (va != 0) as u128),
                 (mux(ge(&a, &b), &a, &b), va.max(vb)),
-                (cat(vec![(&a).into(), (&b).into()]), ((va << wb) | vb) & mask),
+                (
+                    cat(vec![(&a).into(), (&b).into()]),
+                    ((va << wb) | vb) & mask,
+                ),
                 (pick(&a, &n), (va >> vn) & 1),
             ];
             for (k, (e, want)) in cases.into_iter().enumerate() {
                 let bits = e.bits(&mut m.graph, w);
                 let got = val(&bits[..w as usize], &m.graph, &inp);
-                assert_eq!(got, want, "case {k}: {} with a={va} ({wa}b) b={vb} ({wb}b) n={vn}", e.text(true));
+                assert_eq!(
+                    got,
+                    want,
+                    "case {k}: {} with a={va} ({wa}b) b={vb} ({wb}b) n={vn}",
+                    e.text(true)
+                );
             }
         }
     }
