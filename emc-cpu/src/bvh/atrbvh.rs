@@ -27,7 +27,7 @@ use std::marker::PhantomData;
 use std::sync::atomic::{AtomicU32, Ordering};
 
 use emc_core::Aabb;
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 use rayon::prelude::*;
 
 use super::node::{Bvh, Node};
@@ -163,6 +163,25 @@ struct Aux {
 /// and only where the subtree cost strictly drops, so the SAH never rises. The result is
 /// bit-identical for any number of rayon threads.
 pub fn restructure(bvh: &mut Bvh, aabbs: &[Aabb], cfg: &AtrConfig) -> Result<AtrStats, AtrError> {
+    restructure_with(bvh, aabbs, cfg, true)
+}
+
+/// [`restructure`] without the SAH figures of [`AtrStats`] (`sah_before` and `sah_after` are
+/// 0): the same tree, two whole-tree SAH passes cheaper, for builds that report nothing.
+pub fn restructure_quiet(
+    bvh: &mut Bvh,
+    aabbs: &[Aabb],
+    cfg: &AtrConfig,
+) -> Result<AtrStats, AtrError> {
+    restructure_with(bvh, aabbs, cfg, false)
+}
+
+fn restructure_with(
+    bvh: &mut Bvh,
+    aabbs: &[Aabb],
+    cfg: &AtrConfig,
+    sah: bool,
+) -> Result<AtrStats, AtrError> {
     cfg.check()?;
     bvh.validate(aabbs)?;
     let k = SahConstants {
@@ -170,7 +189,7 @@ pub fn restructure(bvh: &mut Bvh, aabbs: &[Aabb], cfg: &AtrConfig) -> Result<Atr
         ci: cfg.ci,
     };
     let mut stats = AtrStats {
-        sah_before: sah_cost(bvh, k),
+        sah_before: if sah { sah_cost(bvh, k) } else { 0.0 },
         ..AtrStats::default()
     };
     let n = bvh.nodes.len();
@@ -241,7 +260,9 @@ pub fn restructure(bvh: &mut Bvh, aabbs: &[Aabb], cfg: &AtrConfig) -> Result<Atr
         }
         stats.per_iteration = vec![(0, 0); cfg.iterations as usize];
     }
-    stats.sah_after = sah_cost(bvh, k);
+    if sah {
+        stats.sah_after = sah_cost(bvh, k);
+    }
     Ok(stats)
 }
 
@@ -449,23 +470,32 @@ impl Pass<'_> {
         let k = t.n_leaves;
         // The live clusters sit at positions 0..live; a merge keeps the lower position and moves
         // the last cluster into the higher one (a swap-remove).
-        let mut boxes = [Aabb::EMPTY; M];
+        // Boxes in SIMD lanes: `Vec3A::min`/`max` give the same bits as `Aabb::union` (both
+        // return the second operand on equal values, and boxes here hold no NaN).
+        let mut lo = [Vec3A::ZERO; M];
+        let mut hi = [Vec3A::ZERO; M];
         let mut costs = [0.0f64; M];
         let mut counts = [0u32; M];
         let mut refs = [0u32; M];
         for i in 0..k {
             // SAFETY: treelet leaves lie in `p`'s subtree.
             let (nd, a) = unsafe { (self.nodes.get(t.leaves[i]), self.aux.get(t.leaves[i])) };
-            boxes[i] = nd.bounds;
+            lo[i] = nd.bounds.min.into();
+            hi[i] = nd.bounds.max.into();
             costs[i] = a.cost;
             counts[i] = a.count;
             refs[i] = t.leaves[i];
         }
+        // `half_area` of the union of two boxes, on lanes.
+        let dist_of = |al: Vec3A, ah: Vec3A, bl: Vec3A, bh: Vec3A| {
+            let d = (ah.max(bh) - al.min(bl)).max(Vec3A::ZERO);
+            d.x * d.y + d.y * d.z + d.z * d.x
+        };
         // Symmetric distance matrix (the diagonal is never read).
         let mut dist = [[0.0f32; M]; M];
         for i in 0..k {
             for j in i + 1..k {
-                let d = half_area(&boxes[i].union(&boxes[j]));
+                let d = dist_of(lo[i], hi[i], lo[j], hi[j]);
                 dist[i][j] = d;
                 dist[j][i] = d;
             }
@@ -483,17 +513,20 @@ impl Pass<'_> {
                     }
                 }
             }
-            let b = boxes[bi].union(&boxes[bj]);
+            let (bl, bh) = (lo[bi].min(lo[bj]), hi[bi].max(hi[bj]));
+            let b = Aabb::new(bl.into(), bh.into());
             let c = self.ct * b.area_f64() + costs[bi] + costs[bj];
             let count = counts[bi].saturating_add(counts[bj]);
             *merge = (b, refs[bi], refs[bj], c, count);
-            boxes[bi] = b;
+            lo[bi] = bl;
+            hi[bi] = bh;
             costs[bi] = c;
             counts[bi] = count;
             refs[bi] = t.slots[k - 2 - m];
             let last = live - 1;
             if bj != last {
-                boxes[bj] = boxes[last];
+                lo[bj] = lo[last];
+                hi[bj] = hi[last];
                 costs[bj] = costs[last];
                 counts[bj] = counts[last];
                 refs[bj] = refs[last];
@@ -505,7 +538,7 @@ impl Pass<'_> {
             live = last;
             for o in 0..live {
                 if o != bi {
-                    let d = half_area(&b.union(&boxes[o]));
+                    let d = dist_of(bl, bh, lo[o], hi[o]);
                     dist[bi][o] = d;
                     dist[o][bi] = d;
                 }

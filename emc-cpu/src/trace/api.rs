@@ -36,7 +36,7 @@ use rayon::prelude::*;
 use emc_core::{Aabb, LayoutSpec};
 
 use crate::build::{build_aabbs_inline, Builder};
-use crate::bvh::atrbvh::{restructure as restructure_atr, AtrConfig};
+use crate::bvh::atrbvh::{restructure_quiet as restructure_atr, AtrConfig};
 use crate::bvh::collapse::collapse_bvh;
 use crate::bvh::refit::CollapseParams;
 use crate::bvh::Bvh;
@@ -72,7 +72,10 @@ pub struct BuildOptions {
     pub restructure: Option<bool>,
     /// Threads for building and batch tracing (`None`: as many as rayon's current pool).
     pub threads: Option<usize>,
-    /// Largest leaf of the SAH leaf collapse (1 keeps one triangle per leaf; default 4).
+    /// Largest leaf of the SAH leaf collapse of the BVH2 before the wide collapse (1 keeps one
+    /// triangle per leaf; default 4, except after treelet restructuring, where `None` leaves
+    /// the leaves to the wide collapse). The wide tree's cover DP merges leaves up to eight
+    /// triangles either way; the fast preset's builder chooses its own.
     pub leaf_size: Option<u32>,
     /// Children per node of the traced tree, 4 or 8 (`None`: [`default_width`]).
     pub width: Option<usize>,
@@ -430,5 +433,14 @@ pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceE
     let mut bvh = out.bvh;
     restructure_atr(&mut bvh, &out.aabbs, &AtrConfig::default())
         .map_err(|e| TraceError::Build(e.to_string()))?;
+    // Without a leaf size of its own, the restructured tree keeps one triangle per leaf: the
+    // wide collapse's cover DP chooses the leaves itself (up to eight triangles). An SAH leaf
+    // collapse before it was measured to change nothing the DP chooses (same wide SAH and work
+    // per ray on san-francisco, bathroom and dragon) and costs more than it saves here (1.39 vs
+    // 1.24 G instructions for a san-francisco build); after binned SAH it saves more than it
+    // costs, so that path keeps it.
+    if opts.leaf_size.is_none() {
+        return Ok(bvh);
+    }
     Ok(collapse_bvh(&bvh, &collapse))
 }

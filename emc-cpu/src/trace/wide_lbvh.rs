@@ -639,6 +639,14 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
         o.nodes.clear();
         o.packets.clear();
         o.blocks.clear();
+        let prims = (ranges[cuts[g + 1] - 1].1 - ranges[cuts[g]].0) as usize;
+        let fresh = o.packets.capacity() == 0;
+        o.packets.reserve(prims / 2 + 1);
+        o.nodes.reserve(prims / (2 * W) + 1);
+        if fresh {
+            crate::hugepage::advise(&o.packets);
+            crate::hugepage::advise(&o.nodes);
+        }
         let mut go = Outputs {
             nodes: &mut o.nodes,
             packets: &mut o.packets,
@@ -664,10 +672,6 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
         np += o.packets.len();
         out.leaves += o.leaves;
     }
-    let base_n = out.nodes.len();
-    let base_p = out.packets.len();
-    crate::buffers::resized(out.nodes, nn, WideNodeN::empty());
-    crate::buffers::resized(out.packets, np, TriPacket::blank(1, true));
     let shift = |c: u32, no: u32, po: u32| {
         if c == EMPTY {
             c
@@ -677,35 +681,27 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
             c + no
         }
     };
-    // Disjoint destination slices, one per group.
-    let mut node_dst = Vec::with_capacity(outs.len());
-    let mut rest = &mut out.nodes[base_n..];
-    for o in outs.iter() {
-        let (a, b) = rest.split_at_mut(o.nodes.len());
-        node_dst.push(a);
-        rest = b;
-    }
-    let mut packet_dst = Vec::with_capacity(outs.len());
-    let mut rest = &mut out.packets[base_p..];
-    for o in outs.iter() {
-        let (a, b) = rest.split_at_mut(o.packets.len());
-        packet_dst.push(a);
-        rest = b;
-    }
-    outs.par_iter()
-        .zip(node_dst)
-        .zip(packet_dst)
-        .enumerate()
-        .for_each(|(g, ((o, nd), pd))| {
-            let (no, po) = (node_off[g], packet_off[g]);
-            for (d, s) in nd.iter_mut().zip(&o.nodes) {
-                *d = *s;
-                for c in d.child.iter_mut() {
-                    *c = shift(*c, no, po);
-                }
+    // Every element placed by an indexed parallel iterator, written straight into the output's
+    // capacity (no fill pass before the copy): element `i` comes from the group whose offset
+    // range holds it.
+    let base_n = out.nodes.len() as u32;
+    let base_p = out.packets.len() as u32;
+    let groups: &[GroupOut<W>] = outs;
+    let (no, po) = (&node_off, &packet_off);
+    out.nodes
+        .par_extend((base_n..nn as u32).into_par_iter().map(|i| {
+            let g = no.partition_point(|&o| o <= i) - 1;
+            let mut d = groups[g].nodes[(i - no[g]) as usize];
+            for c in d.child.iter_mut() {
+                *c = shift(*c, no[g], po[g]);
             }
-            pd.copy_from_slice(&o.packets);
-        });
+            d
+        }));
+    out.packets
+        .par_extend((base_p..np as u32).into_par_iter().map(|i| {
+            let g = po.partition_point(|&o| o <= i) - 1;
+            groups[g].packets[(i - po[g]) as usize]
+        }));
     let mut blocks = Vec::with_capacity(ranges.len());
     for (g, o) in outs.iter().enumerate() {
         for f in &o.blocks {
