@@ -557,13 +557,11 @@ impl Graph {
         for b in &self.outputs {
             fanout[b.net()] += OUTPUT_LOADS;
         }
-        let drive = |g: &Gate, f: u32| -> f64 {
+        let drive = |_: &Gate, f: u32| -> f64 {
             if f <= 1 {
                 return 0.0;
             }
-            match g.kind {
-                _ => ((f as f64).log(4.0).ceil() - 1.0).max(0.0),
-            }
+            ((f as f64).log(4.0).ceil() - 1.0).max(0.0)
         };
         // Arrival (levels, gates on the path) at every net's loads, in creation order (every
         // gate's inputs are older than it, flip-flops start new paths).
