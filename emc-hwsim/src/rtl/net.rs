@@ -94,7 +94,8 @@ fn levels_of(k: Kind) -> f64 {
     }
 }
 
-/// Levels of an XOR or a 2:1 multiplexer ([`levels_of`]).
+/// Gate levels of an XOR or a 2:1 multiplexer on a path (one for AND, OR and AND-OR): their
+/// static-CMOS forms stack a second stage on part of their inputs.
 pub const XOR_MUX_LEVELS: f64 = 1.5;
 
 /// Gate levels of a flip-flop's clock-to-output (also charged to module inputs, which a
