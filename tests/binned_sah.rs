@@ -7,7 +7,8 @@
 
 use emc_core::Aabb;
 use emc_cpu::bvh::binned_sah::{
-    build_binned_sah, build_binned_sah_detailed, BinnedSahError, DEFAULT_BINS, MAX_BINS,
+    build_binned_sah, build_binned_sah_detailed, build_binned_sah_leaves, BinnedSahError, LeafRule,
+    DEFAULT_BINS, MAX_BINS,
 };
 use emc_cpu::bvh::{sah_headline, Bvh, Node};
 use emc_tests::{bx, hard_scenes, pt, scene};
@@ -395,6 +396,131 @@ fn centroids_spread_over_the_whole_f32_range() {
         &got,
         &plain_binned_sah(&chain, DEFAULT_BINS),
         "geometric chain",
+    );
+}
+
+// ---------------------------------------------------------------------------------------------
+// The build cut at SAH leaves.
+
+/// Surface area in `f64`, written out here.
+fn area64(b: &Aabb) -> f64 {
+    let d = [0, 1, 2].map(|a| (b.max[a] as f64 - b.min[a] as f64).max(0.0));
+    2.0 * (d[0] * d[1] + d[1] * d[2] + d[2] * d[0])
+}
+
+/// Primitives below node `i` of `bvh`.
+fn subtree_prims(bvh: &Bvh, i: u32) -> Vec<u32> {
+    let n = &bvh.nodes[i as usize];
+    if n.is_leaf() {
+        let f = n.first() as usize;
+        return bvh.prim_indices[f..f + n.count() as usize].to_vec();
+    }
+    let mut v = subtree_prims(bvh, n.left());
+    v.extend(subtree_prims(bvh, n.right()));
+    v
+}
+
+/// Walks the cut tree beside the full one-primitive-per-leaf tree: every inner node of the cut
+/// tree is the full tree's node (same box, children in the same places); every leaf holds the
+/// primitives of the full tree's subtree there. The leaf decision is checked against the rule
+/// priced on the full tree's children: a leaf where `Ci·A·n < Ct·A + Ci·Σ A_c·n_c`, an inner
+/// node elsewhere (for nodes of at most `max_leaf`). Returns the number of leaves.
+fn check_cut(cut: &Bvh, c: u32, full: &Bvh, f: u32, rule: &LeafRule, what: &str) -> usize {
+    let (cn, fnode) = (&cut.nodes[c as usize], &full.nodes[f as usize]);
+    assert_eq!(cn.bounds, fnode.bounds, "{what}: node box");
+    let n = subtree_prims(full, f).len();
+    let rule_says_leaf = !fnode.is_leaf() && n <= rule.max_leaf as usize && {
+        let (l, r) = (
+            &full.nodes[fnode.left() as usize],
+            &full.nodes[fnode.right() as usize],
+        );
+        let nl = subtree_prims(full, fnode.left()).len();
+        let split = rule.ct * area64(&fnode.bounds)
+            + rule.ci * (area64(&l.bounds) * nl as f64 + area64(&r.bounds) * (n - nl) as f64);
+        rule.ci * area64(&fnode.bounds) * (n as f64) < split
+    };
+    if cn.is_leaf() {
+        assert!(
+            fnode.is_leaf() || rule_says_leaf,
+            "{what}: leaf the rule rejects"
+        );
+        let mut got = subtree_prims(cut, c);
+        let mut want = subtree_prims(full, f);
+        got.sort_unstable();
+        want.sort_unstable();
+        assert_eq!(got, want, "{what}: leaf primitives");
+        return 1;
+    }
+    assert!(
+        !fnode.is_leaf() && !rule_says_leaf,
+        "{what}: split the rule rejects"
+    );
+    check_cut(cut, cn.left(), full, fnode.left(), rule, what)
+        + check_cut(cut, cn.right(), full, fnode.right(), rule, what)
+}
+
+#[test]
+fn the_cut_build_is_the_full_build_above_its_sah_leaves() {
+    let rule = LeafRule {
+        max_leaf: 4,
+        ct: 1.2,
+        ci: 1.0,
+    };
+    let mut inputs = vec![
+        ("random 20k", random_boxes(20_000, 11)),
+        ("clustered 30k", clustered_boxes(30_000, 12)),
+        ("nine clusters 5k", nine_clusters(5_000, 13)),
+    ];
+    for (name, boxes) in hard_scenes() {
+        inputs.push((name, boxes));
+    }
+    for (what, boxes) in &inputs {
+        let full = build_binned_sah(boxes, DEFAULT_BINS).expect("valid input");
+        let cut = build_binned_sah_leaves(boxes, DEFAULT_BINS, rule)
+            .expect("valid input")
+            .bvh;
+        let stats = cut
+            .validate(boxes)
+            .unwrap_or_else(|e| panic!("{what}: invalid cut tree: {e}"));
+        assert!(stats.max_leaf_size <= 4, "{what}: leaf above max_leaf");
+        let leaves = check_cut(&cut, 0, &full, 0, &rule, what);
+        assert_eq!(stats.nodes, 2 * leaves - 1, "{what}: compact nodes");
+        if boxes.len() > 1000 {
+            assert!(leaves < boxes.len(), "{what}: the rule made no leaf");
+        }
+        // max_leaf = 1 is the full build.
+        let one = build_binned_sah_leaves(
+            boxes,
+            DEFAULT_BINS,
+            LeafRule {
+                max_leaf: 1,
+                ..rule
+            },
+        )
+        .expect("valid input");
+        assert_same_tree(&one.bvh, &full, what);
+    }
+    // Any thread count, the same tree.
+    let boxes = clustered_boxes(120_000, 14);
+    let prints: Vec<Vec<u32>> = [1, 3]
+        .into_iter()
+        .map(|t| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(t)
+                .build()
+                .expect("thread pool");
+            let b = pool.install(|| build_binned_sah_leaves(&boxes, DEFAULT_BINS, rule));
+            fingerprint(&b.expect("valid input").bvh)
+        })
+        .collect();
+    assert!(prints[0] == prints[1], "1 and 3 threads differ");
+    let bad = LeafRule {
+        max_leaf: 0,
+        ..rule
+    };
+    assert_eq!(
+        build_binned_sah_leaves(&boxes, DEFAULT_BINS, bad).err(),
+        Some(BinnedSahError::LeafRule)
     );
 }
 

