@@ -18,7 +18,7 @@ use crate::datapath::{Token, FP_LATENCY};
 use crate::fixed::{compare_key, exp_add, float_to_fixed};
 use crate::routing::{morton_wires, permute, Benes, Crossbar, Permutation};
 use crate::rtl::arith;
-use crate::rtl::net::{eq, gt, le, mux, pick, shl, shr, Mod, Sig, E};
+use crate::rtl::net::{cat, eq, gt, le, mux, pick, shl, shr, Mod, Sig, E};
 use crate::rtl::ImageWord;
 
 /// Axis letters of names.
@@ -237,22 +237,50 @@ fn k(w: u32, v: u128) -> Sig {
 }
 
 /// binary32 → binary64, exact (module `emc_f32_to_f64`): subnormal inputs are normalised by a
-/// leading-one search; the unit's inputs are finite, so there is no infinity/NaN path.
+/// leading-zero count written as a log-depth tree (each node of the 32-bit word: any one below
+/// it, and its count, the upper half's when that has a one, else the lower half's with the
+/// half's weight added) and a logarithmic shifter; the unit's inputs are finite, so there is
+/// no infinity/NaN path.
 pub fn f32_to_f64(m: &mut Mod) {
     m.comment("emc_f32_to_f64: exact binary32 -> binary64 of a finite value.");
     let f = m.input("f", 32);
     let e = m.wire("e", 8, f.at(30, 23));
     let mm = m.wire("m", 23, f.at(22, 0));
-    let mut lead = k(5, 0);
-    for i in 0..23u32 {
-        lead = m.wire(&format!("l{i}"), 5, mux(mm.bit(i), k(5, i as u128), &lead));
+    let x = m.wire("x", 32, Sig::cat(&[k(9, 0), mm.clone()]));
+    // Level l: 32 >> l nodes, node i covering bits [i 2^l, (i + 1) 2^l); `any` has one bit
+    // per node, `cnt` l bits per node (the node's leading zeros).
+    let mut any = x.clone();
+    let mut cnt: Option<Sig> = None;
+    for l in 1..=5u32 {
+        let nodes = 32 >> l;
+        let mut a_parts = Vec::new();
+        let mut c_parts = Vec::new();
+        for i in (0..nodes).rev() {
+            let (hi, lo) = (2 * i + 1, 2 * i);
+            let a_hi = any.bit(hi);
+            a_parts.push(E::from(&a_hi) | any.bit(lo));
+            c_parts.push(match &cnt {
+                None => !&a_hi,
+                Some(c) => {
+                    let w = l - 1;
+                    let c_hi = c.at(hi * w + w - 1, hi * w);
+                    let c_lo = c.at(lo * w + w - 1, lo * w);
+                    mux(
+                        &a_hi,
+                        Sig::cat(&[k(1, 0), c_hi]),
+                        Sig::cat(&[k(1, 1), c_lo]),
+                    )
+                }
+            });
+        }
+        any = m.wire(&format!("any{l}"), nodes, cat(a_parts));
+        cnt = Some(m.wire(&format!("cnt{l}"), nodes * l, cat(c_parts)));
     }
-    let ms = m.wire("ms", 23, shl(&mm, k(5, 23) - &lead));
-    let se = m.wire(
-        "se",
-        11,
-        E::from(Sig::cat(&[k(6, 0), lead.clone()])) + k(11, 874),
-    );
+    let lzc = cnt.expect("five levels");
+    let sh = m.wire("sh", 32, shl(&x, &lzc));
+    let ms = m.wire("ms", 23, sh.at(30, 8));
+    let lead = m.wire("lead", 5, !&lzc);
+    let se = m.wire("se", 11, E::from(Sig::cat(&[k(6, 0), lead])) + k(11, 874));
     let ne = m.wire(
         "ne",
         11,

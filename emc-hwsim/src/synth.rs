@@ -245,12 +245,6 @@ pub const AREA_CALIBRATION: &str = "emc_fp64_add";
 /// The block whose synthesis fixes the library's delay factor: the fp64 adder too (a
 /// mixture of shifters, carry trees and leading-zero logic, the unit's typical path).
 pub const DELAY_CALIBRATION: &str = "emc_fp64_add";
-/// Blocks whose delay the model is known to miss by more than ±25 % (held to ±40 %), and why:
-/// `emc_f32_to_f64`'s leading-one search is written as a 23-step priority chain that the
-/// mapper rebalances into a tree (model slow); `emc_fp64_mul`'s carry-save rows map to
-/// full-adder cells slower per level than the model's XOR levels (model fast).
-pub const DELAY_EXCEPTIONS: [&str; 2] = ["emc_f32_to_f64", "emc_fp64_mul"];
-
 /// Synthesise every block of `unit` and the whole unit.
 pub fn synthesize(unit: &Unit, o: &SynthOptions) -> Result<SynthReport, HwError> {
     let mut rows = Vec::new();
@@ -323,11 +317,10 @@ impl SynthReport {
     }
 
     /// Rows (blocks and the whole unit) whose synthesised area or delay lies outside ±25 % of
-    /// the calibrated model (±40 % for the delays of [`DELAY_EXCEPTIONS`]), with what is
-    /// outside. The calibration block is 1.00 by construction.
+    /// the calibrated model, with what is outside. The calibration block is 1.00 by
+    /// construction.
     pub fn outside(&self) -> Vec<(&Row, String)> {
         let band = |x: Option<f64>| x.is_some_and(|v| !(0.75..=1.25).contains(&v));
-        let wide = |x: Option<f64>| x.is_some_and(|v| !(0.60..=1.40).contains(&v));
         self.blocks
             .iter()
             .chain(self.total.iter())
@@ -337,8 +330,7 @@ impl SynthReport {
                 if band(a) && r.name != AREA_CALIBRATION {
                     why.push(format!("area {:.2}", a.unwrap_or(0.0)));
                 }
-                let known = DELAY_EXCEPTIONS.contains(&r.name.as_str());
-                if (if known { wide(d) } else { band(d) }) && r.name != DELAY_CALIBRATION {
+                if band(d) && r.name != DELAY_CALIBRATION {
                     why.push(format!("delay {:.2}", d.unwrap_or(0.0)));
                 }
                 (!why.is_empty()).then(|| (r, why.join(", ")))
@@ -398,9 +390,7 @@ impl fmt::Display for SynthReport {
         if out.is_empty() {
             writeln!(
                 f,
-                "every other block is within ±25 % of the calibrated model in area and delay \
-                 (delay of {}: ±40 %, see emc_hwsim::synth::DELAY_EXCEPTIONS)",
-                DELAY_EXCEPTIONS.join(", ")
+                "every other block is within ±25 % of the calibrated model in area and delay"
             )
         } else {
             writeln!(

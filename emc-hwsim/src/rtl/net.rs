@@ -83,20 +83,26 @@ fn transistors(k: Kind) -> u64 {
 }
 
 /// Gate levels of a logic gate: one for the AND/OR forms (a NAND or NOR and the inverter the
-/// mapper folds into the next gate) and for AND-OR; [`XOR_MUX_LEVELS`] for an XOR or a 2:1
-/// multiplexer, whose static-CMOS forms stack a second stage on part of their inputs (12
-/// transistors against 6 for an AND in the estimate of [`transistors`]; half of the second
-/// stage is on the path on average).
+/// mapper folds into the next gate) and for AND-OR; [`XOR_LEVELS`] for an XOR and
+/// [`MUX_LEVELS`] for a 2:1 multiplexer.
 fn levels_of(k: Kind) -> f64 {
     match k {
-        Kind::Xor | Kind::Mux => XOR_MUX_LEVELS,
+        Kind::Xor => XOR_LEVELS,
+        Kind::Mux => MUX_LEVELS,
         _ => 1.0,
     }
 }
 
-/// Gate levels of an XOR or a 2:1 multiplexer on a path (one for AND, OR and AND-OR): their
-/// static-CMOS forms stack a second stage on part of their inputs.
-pub const XOR_MUX_LEVELS: f64 = 1.5;
+/// Gate levels of an XOR on a path. The library's XOR is a two-stage cell whose inputs load
+/// the driving gate like two to three NAND inputs (OSU 0.18 µm: `XOR2X1` 0.030 pF per input
+/// against 0.0125 pF for `NAND2X1`, `MUX2X1` 0.017 pF on its data inputs): about twice an
+/// AND/OR level once its own load is counted; a chain of them (a carry-save tree's sums) is
+/// the typical multiplier path.
+pub const XOR_LEVELS: f64 = 2.0;
+/// Gate levels of a 2:1 multiplexer on a path: its static-CMOS form stacks a second stage on
+/// part of its inputs (12 transistors against 6 for an AND in the estimate of
+/// the generic gate estimate; half of the second stage is on the path on average).
+pub const MUX_LEVELS: f64 = 1.5;
 
 /// Gate levels of a flip-flop's clock-to-output (also charged to module inputs, which a
 /// flip-flop of the surrounding pipeline drives): two gate delays.
@@ -422,12 +428,22 @@ impl Graph {
         buf
     }
 
-    /// A full adder (yosys's `_90_fa`): returns (sum, carry).
+    /// A full adder as the mapper builds yosys's `$fa`: the sum an XOR of three (two XOR
+    /// cells), the carry the majority `ab | c(a | b)` (ABC restructures `_90_fa`'s
+    /// `ab | c(a ^ b)` into it: the carry no longer waits for the first XOR, so the critical
+    /// path of a carry-save tree runs through its sums); returns (sum, carry).
     fn fa(&mut self, a: Bit, b: Bit, c: Bit) -> (Bit, Bit) {
         let t1 = self.xor(a, b);
+        let sum = self.xor(t1, c);
+        if a.is_const() || b.is_const() || c.is_const() {
+            // Folds to a half adder or a wire: the plain form simplifies best.
+            let t2 = self.and(a, b);
+            let t3 = self.and(c, t1);
+            return (sum, self.or(t2, t3));
+        }
         let t2 = self.and(a, b);
-        let t3 = self.and(c, t1);
-        (self.xor(t1, c), self.or(t2, t3))
+        let o = self.or(a, b);
+        (sum, self.ao21(t2, c, o))
     }
 
     /// `a × b` truncated to `yw` bits as yosys's `maccmap` builds it: one partial-product row
