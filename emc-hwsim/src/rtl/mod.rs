@@ -113,6 +113,69 @@ impl RtlFiles {
     }
 }
 
+/// Compile the files [`RtlFiles::write`] put in `dir` with Icarus Verilog (`iverilog -g2005`)
+/// and run the testbench (`vvp`) on them, dumping the unit's top-level signals to the VCD file
+/// `vcd` when given (the testbench's `+vcd=FILE`; a relative path is taken from the current
+/// directory). Returns the testbench's verdict line (`PASS …` or the `FAIL`/`MISMATCH` lines);
+/// a failed compilation, a missing simulator or a testbench that does not pass is an error.
+pub fn simulate(dir: &Path, vcd: Option<&Path>) -> Result<String, HwError> {
+    let run = |cmd: &mut std::process::Command, what: &str| {
+        cmd.current_dir(dir).output().map_err(|e| {
+            HwError::Rtl(format!(
+                "cannot run {what}: {e} (Debian: apt-get install iverilog)"
+            ))
+        })
+    };
+    let c = run(
+        std::process::Command::new("iverilog").args([
+            "-g2005",
+            "-o",
+            "sim",
+            "emc_unit.v",
+            "emc_unit_tb.v",
+        ]),
+        "iverilog",
+    )?;
+    if !c.status.success() {
+        return Err(HwError::Rtl(format!(
+            "iverilog failed in {}: {}",
+            dir.display(),
+            String::from_utf8_lossy(&c.stderr)
+        )));
+    }
+    let mut sim = std::process::Command::new("vvp");
+    sim.args(["-n", "sim"]);
+    if let Some(v) = vcd {
+        let abs = if v.is_absolute() {
+            v.to_path_buf()
+        } else {
+            std::env::current_dir()
+                .map_err(|e| HwError::Rtl(e.to_string()))?
+                .join(v)
+        };
+        sim.arg(format!("+vcd={}", abs.display()));
+    }
+    let r = run(&mut sim, "vvp")?;
+    let out = String::from_utf8_lossy(&r.stdout).into_owned();
+    let verdict: Vec<&str> = out
+        .lines()
+        .filter(|l| {
+            l.starts_with("PASS")
+                || l.starts_with("FAIL")
+                || l.starts_with("MISMATCH")
+                || l.starts_with("MISSING")
+        })
+        .collect();
+    match verdict.first() {
+        Some(l) if l.starts_with("PASS") && r.status.success() => Ok(l.to_string()),
+        _ => Err(HwError::Rtl(format!(
+            "the testbench did not pass in {}:\n{out}{}",
+            dir.display(),
+            String::from_utf8_lossy(&r.stderr)
+        ))),
+    }
+}
+
 /// The written unit: the `emc_unit` module (with its library of instantiated modules) and
 /// the gate ranges each stage's block created.
 #[derive(Debug)]
@@ -233,7 +296,8 @@ fn testbench(unit: &Unit, words: usize, nv: usize) -> String {
     let nv = nv.max(4096);
     format!(
         "// emc_unit_tb: self-checking testbench of emc_unit for {spec}; expected codes and cycles from
-// the model (emc_unit.vectors). Plusargs: +vectors=FILE +regs=FILE.
+// the model (emc_unit.vectors). Plusargs: +vectors=FILE +regs=FILE, and +vcd=FILE to dump the
+// unit's top-level signals (the ports and the wires of emc_unit itself) as a VCD waveform.
 `timescale 1ns/1ps
 module emc_unit_tb;
   parameter NV = {nv};
@@ -260,8 +324,13 @@ module emc_unit_tb;
   integer fd, rc, ch, n, i, cyc, ni, no, errors, last;
   reg [8*256-1:0] fname;
   reg [8*256-1:0] rname;
+  reg [8*256-1:0] vname;
   reg [8*1024-1:0] skip;
   initial begin
+    if ($value$plusargs(\"vcd=%s\", vname)) begin
+      $dumpfile(vname);
+      $dumpvars(1, dut);
+    end
     if (!$value$plusargs(\"vectors=%s\", fname)) fname = \"emc_unit.vectors\";
     if (!$value$plusargs(\"regs=%s\", rname)) rname = \"emc_unit.regs.hex\";
     $readmemh(rname, img, 0, NW - 1);
