@@ -182,7 +182,12 @@ impl Cost {
     }
 }
 
-/// The cost of a unit as configured (only instantiated parts are counted).
+/// The cost of a unit as configured (only instantiated parts are counted), priced from the
+/// published anchors above (Aladdin's fp units, the generic-gate estimates of the routing
+/// and search): the area, energy and latency figures of `emc hwsim`'s cost table and the
+/// energy per code of the EMC-vs-Morton table come from here. The gate model of the emitted
+/// Verilog ([`crate::rtl::net::Graph::price`], held against synthesis in [`crate::synth`])
+/// prices the same unit independently; `--synth-compare` prints both area ratios to Morton.
 pub fn cost(unit: &Unit) -> Cost {
     let r = unit.registers();
     let o = unit.options();
