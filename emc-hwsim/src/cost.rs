@@ -42,6 +42,11 @@ pub fn delay_at(ns_at_40nm: f64, nm: f64) -> f64 {
     ns_at_40nm * nm / NODE_NM as f64
 }
 
+/// Delay of one gate level at 40 nm, ns \[D\]: Aladdin's 32-bit barrel shifter, 0.70 ns over
+/// its 11 gate levels (hardware-anchors.md §2.5). The gate model of [`crate::rtl::net`]
+/// counts levels (fan-out buffering included); this converts them.
+pub const NS_PER_LEVEL: f64 = 0.70 / 11.0;
+
 /// Area of the `S`-step binary threshold search or of the comparator bank on 63-bit keys,
 /// µm² at 40 nm \[D\]: the yosys estimates (26.8k T for 6 steps over 63 31-bit thresholds,
 /// 61k T for the 63-comparator bank) scaled to 63-bit keys and `2^S − 1` thresholds.
@@ -177,7 +182,12 @@ impl Cost {
     }
 }
 
-/// The cost of a unit as configured (only instantiated parts are counted).
+/// The cost of a unit as configured (only instantiated parts are counted), priced from the
+/// published anchors above (Aladdin's fp units, the generic-gate estimates of the routing
+/// and search): the area, energy and latency figures of `emc hwsim`'s cost table and the
+/// energy per code of the EMC-vs-Morton table come from here. The gate model of the emitted
+/// Verilog ([`crate::rtl::net::Graph::price`], held against synthesis in [`crate::synth`])
+/// prices the same unit independently; `--synth-compare` prints both area ratios to Morton.
 pub fn cost(unit: &Unit) -> Cost {
     let r = unit.registers();
     let o = unit.options();
@@ -516,4 +526,16 @@ pub fn easy_table(rows: &[EasyRow], bandwidths: &[f64], clock_ghz: f64) -> Strin
         s.push('\n');
     }
     s
+}
+
+/// Pipeline stages of the fp64 square root and divider: 55 digit steps of the restoring
+/// recurrences, four or five per stage (each a 56–60-bit subtractor and a multiplexer).
+pub fn recurrence_stages() -> u32 {
+    12
+}
+
+/// Pipeline stages of a Beneš network: its columns split over two register stages (each half
+/// is 5–6 multiplexer levels, as deep as the crossbar's one stage).
+pub fn benes_stages(_b: &crate::routing::Benes) -> u32 {
+    2
 }

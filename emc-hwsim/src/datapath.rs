@@ -5,15 +5,14 @@
 #![forbid(unsafe_code)]
 
 use core::fmt;
+use std::sync::Arc;
 
 use emc_core::{Aabb, Channel, Frame, Layout, LayoutSpec, SizeTransform};
 
+use crate::blocks::{self, Block};
 use crate::error::HwError;
 use crate::firmware::{is_regular, position_scale, size_thresholds};
-use crate::fixed::{compare_key, exp_add, float_to_fixed};
-use crate::routing::{
-    field_offsets, layout_permutation, morton_wires, permute, Benes, Crossbar, Permutation,
-};
+use crate::routing::{field_offsets, layout_permutation, Benes, Crossbar, Permutation};
 
 /// Which interleave hardware to build.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default)]
@@ -253,41 +252,9 @@ impl Registers {
     }
 }
 
-/// What a stage does (its operation on the token, applied when the stage completes).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Op {
-    /// Split the 24-byte record into `lo` and `hi` (a register stage).
-    Unpack,
-    /// `c2 = lo + hi` per active axis ∥ size: `Δ = hi − lo`.
-    Centre,
-    /// `c2 − 2·origin` ∥ size: `Δ²`.
-    Offset,
-    /// `× half_scale` ∥ size: `Δx² + Δy²`.
-    Scale,
-    /// float→fixed with clamp per active axis ∥ size: `+ Δz²`.
-    Fix,
-    /// Binary threshold search, step `k` (stride `2^(S−1−k)`).
-    SearchStep(u32),
-    /// Comparator bank and population count.
-    Bank,
-    /// fp64 square root of `d2`.
-    Sqrt,
-    /// `× 2^S` by exponent add.
-    SizeScale,
-    /// fp64 divide by `D`.
-    Div,
-    /// fp64 square root of `d / D` (sqrt transform).
-    Sqrt2,
-    /// float→fixed with clamp of the size value.
-    SizeFix,
-    /// Pack fields and pass network columns `from..to` (Beneš) or the whole crossbar.
-    Route(u8, u8),
-    /// Write the code word (fixed wiring happens here: it is only wires).
-    Pack,
-}
-
-/// One named pipeline stage.
-#[derive(Clone, Debug, PartialEq)]
+/// One named pipeline stage: its timing and the block that describes it once (model
+/// behaviour, Verilog, configuration; see [`crate::blocks`]).
+#[derive(Clone, Debug)]
 pub struct Stage {
     /// Name in the structure printout.
     pub name: &'static str,
@@ -295,10 +262,22 @@ pub struct Stage {
     pub latency: u32,
     /// Initiation interval (cycles between accepted tokens).
     pub ii: u32,
-    /// Operation applied on completion.
-    pub op: Op,
     /// What hardware the stage instantiates (for the printout).
     pub hw: String,
+    /// The block.
+    pub block: Arc<dyn Block>,
+}
+
+impl Stage {
+    fn of(block: Arc<dyn Block>) -> Stage {
+        Stage {
+            name: block.name(),
+            latency: block.latency(),
+            ii: block.ii(),
+            hw: block.hw(),
+            block,
+        }
+    }
 }
 
 /// Largest size-bit count served by threshold registers (the formula path above).
@@ -306,8 +285,6 @@ pub const MAX_THRESHOLD_BITS: u32 = 8;
 
 /// Latency of the 3-stage fp64 adder and multiplier (DesignWare-class, 1 GHz at 40 nm).
 pub const FP_LATENCY: u32 = 3;
-/// Latency of a pipelined fp64 square root or divider (multiplicative, assumed).
-pub const SQRT_DIV_PIPELINED_LATENCY: u32 = 12;
 /// Latency (= initiation interval) of an iterative radix-4 fp64 square root or divider.
 pub const SQRT_DIV_ITERATIVE_LATENCY: u32 = 28;
 
@@ -316,16 +293,15 @@ pub const SQRT_DIV_ITERATIVE_LATENCY: u32 = 28;
 pub struct Token {
     /// Primitive index (for ordering checks).
     pub index: u64,
-    lo: [f32; 3],
-    hi: [f32; 3],
-    c2: [f64; 3],
-    dl: [f64; 3],
-    acc: f64,
-    d2: f64,
-    q: [u64; 4],
-    pos: u64,
-    sd: f64,
-    word: u64,
+    pub(crate) lo: [f32; 3],
+    pub(crate) hi: [f32; 3],
+    pub(crate) c2: [f64; 3],
+    pub(crate) dl: [f64; 3],
+    pub(crate) acc: f64,
+    pub(crate) d2: f64,
+    pub(crate) q: [u64; 4],
+    pub(crate) sd: f64,
+    pub(crate) word: u64,
 }
 
 impl Token {
@@ -379,7 +355,7 @@ impl Unit {
             return Err(HwError::NoLanes(0));
         }
         let regs = Registers::program(&layout, spec.is_adaptive(), frame, opts)?;
-        let stages = build_stages(&regs, opts);
+        let stages = build_stages(&regs, opts, &layout);
         Ok(Unit {
             regs,
             stages,
@@ -451,119 +427,13 @@ impl Unit {
         }
     }
 
-    /// Apply one stage's operation to a token.
-    #[inline]
-    pub fn apply(&self, op: Op, t: &mut Token) {
-        let r = &self.regs;
-        let size = !matches!(r.size, SizeUnit::None);
-        match op {
-            Op::Unpack => {}
-            Op::Centre => {
-                for a in 0..3 {
-                    if r.axis_on[a] {
-                        t.c2[a] = t.lo[a] as f64 + t.hi[a] as f64;
-                    }
-                    if size {
-                        t.dl[a] = t.hi[a] as f64 - t.lo[a] as f64;
-                    }
-                }
-            }
-            Op::Offset => {
-                for a in 0..3 {
-                    if r.axis_on[a] {
-                        t.c2[a] -= r.origin2[a];
-                    }
-                    if size {
-                        t.dl[a] *= t.dl[a];
-                    }
-                }
-            }
-            Op::Scale => {
-                for a in 0..3 {
-                    if r.axis_on[a] {
-                        t.c2[a] *= r.half_scale[a];
-                    }
-                }
-                if size {
-                    t.acc = t.dl[0] + t.dl[1];
-                }
-            }
-            Op::Fix => {
-                for a in 0..3 {
-                    if r.axis_on[a] {
-                        t.q[a] = float_to_fixed(t.c2[a], r.bits[a]);
-                    }
-                }
-                if size {
-                    t.d2 = t.acc + t.dl[2];
-                }
-            }
-            Op::SearchStep(k) => {
-                if let SizeUnit::Thresholds { bits, keys } = &r.size {
-                    let stride = 1u64 << (bits - 1 - k);
-                    let key = compare_key(t.d2);
-                    t.pos += stride * (keys[(t.pos + stride) as usize] <= key) as u64;
-                    t.q[3] = t.pos;
-                }
-            }
-            Op::Bank => {
-                if let SizeUnit::Thresholds { keys, .. } = &r.size {
-                    let key = compare_key(t.d2);
-                    t.q[3] = keys[1..].iter().filter(|&&k| k <= key).count() as u64;
-                }
-            }
-            Op::Sqrt => t.sd = t.d2.sqrt(),
-            Op::SizeScale => t.sd = exp_add(t.sd, r.bits[3]),
-            Op::Div => {
-                if let SizeUnit::Formula { diag, .. } = r.size {
-                    t.sd /= diag;
-                }
-            }
-            Op::Sqrt2 => t.sd = t.sd.sqrt(),
-            Op::SizeFix => t.q[3] = float_to_fixed(t.sd, r.bits[3]),
-            Op::Route(from, to) => {
-                if from == 0 {
-                    t.word = self.packed(&t.q);
-                }
-                match &r.net {
-                    Network::Benes(b) => {
-                        t.word = b.apply_columns(t.word, from as usize..to as usize)
-                    }
-                    Network::Crossbar(x) => t.word = x.apply(t.word),
-                    Network::Fixed { .. } => {}
-                }
-            }
-            Op::Pack => {
-                if let Network::Fixed { src, morton } = &r.net {
-                    t.word = match morton {
-                        Some(_) => morton_wires(t.q[0], t.q[1], t.q[2]),
-                        None => permute(src, self.packed(&t.q), r.len),
-                    };
-                }
-            }
-        }
-    }
-
-    /// The packed routing word: each channel value in its field (the float→fixed shifters
-    /// write there directly in the unit).
-    #[inline(always)]
-    fn packed(&self, q: &[u64; 4]) -> u64 {
-        let mut w = 0u64;
-        for (c, &v) in q.iter().enumerate() {
-            if self.regs.bits[c] > 0 {
-                w |= v << self.regs.offset[c];
-            }
-        }
-        w
-    }
-
-    /// The code of one box: every stage's operation in pipeline order (the fast mode's
-    /// datapath; the same operations the cycle-stepped mode applies stage by stage).
+    /// The code of one box: every stage's block in pipeline order (the same evaluations the
+    /// cycle-stepped mode applies stage by stage).
     #[inline]
     pub fn code(&self, b: &Aabb) -> u64 {
         let mut t = Token::new(0, b);
         for s in &self.stages {
-            self.apply(s.op, &mut t);
+            s.block.eval(&mut t);
         }
         t.word
     }
@@ -580,324 +450,129 @@ impl Unit {
     /// [`Unit::codes`] into a slice of the same length as `boxes` (extra slots are left).
     pub fn codes_into(&self, boxes: &[Aabb], out: &mut [u64]) {
         let len = boxes.len().min(out.len());
-        let out = &mut out[..len];
-        let generic = !matches!(
-            (&self.regs.size, &self.regs.net),
-            (
-                SizeUnit::None | SizeUnit::Thresholds { .. } | SizeUnit::Formula { .. },
-                Network::Fixed {
-                    morton: Some(_),
-                    ..
-                } | Network::Benes(_)
-            )
-        );
-        if generic {
-            for (o, b) in out.iter_mut().zip(boxes) {
-                *o = self.code(b);
+        let mut toks = [Token::default(); BLOCK];
+        for (ob, bb) in out[..len].chunks_mut(BLOCK).zip(boxes.chunks(BLOCK)) {
+            let ts = &mut toks[..bb.len()];
+            for (t, b) in ts.iter_mut().zip(bb) {
+                t.lo = b.min.to_array();
+                t.hi = b.max.to_array();
             }
-            return;
-        }
-        // Network columns as fixed arrays (distance, mask).
-        let mut cols = [(0u32, 0u64); 11];
-        let mut ncols = 0;
-        if let Network::Benes(b) = &self.regs.net {
-            ncols = b.columns();
-            for (i, c) in cols.iter_mut().enumerate().take(ncols) {
-                *c = (b.distance(i), b.masks()[i]);
+            for s in &self.stages {
+                s.block.eval_all(ts);
+            }
+            for (o, t) in ob.iter_mut().zip(ts.iter()) {
+                *o = t.word;
             }
         }
-        // Threshold keys padded to 256 entries so the search index needs no bounds logic.
-        let mut keys = [u64::MAX; 256];
-        if let SizeUnit::Thresholds { keys: k, .. } = &self.regs.size {
-            keys[..k.len()].copy_from_slice(k);
-        }
-        for (ob, bb) in out.chunks_mut(BLOCK).zip(boxes.chunks(BLOCK)) {
-            self.block(bb, ob, &cols[..ncols], &keys);
-        }
-    }
-
-    /// One block of the fast datapath: positions, d² and threshold search, routing.
-    // Several parallel per-channel arrays are indexed by the same channel number.
-    #[allow(clippy::needless_range_loop)]
-    #[inline(always)]
-    fn block(&self, boxes: &[Aabb], out: &mut [u64], cols: &[(u32, u64)], keys: &[u64; 256]) {
-        let r = &self.regs;
-        let m = boxes.len();
-        let mut q = [[0u64; BLOCK]; 4];
-        for a in 0..3 {
-            if !r.axis_on[a] {
-                continue;
-            }
-            let (o2, hs, n) = (r.origin2[a], r.half_scale[a], r.bits[a]);
-            for (j, b) in boxes.iter().enumerate() {
-                let v = ((b.min[a] as f64 + b.max[a] as f64) - o2) * hs;
-                q[a][j] = float_to_fixed(v, n);
-            }
-        }
-        if let SizeUnit::Thresholds { bits, .. } = &r.size {
-            let mut key = [0u64; BLOCK];
-            for (j, b) in boxes.iter().enumerate() {
-                let dx = b.max.x as f64 - b.min.x as f64;
-                let dy = b.max.y as f64 - b.min.y as f64;
-                let dz = b.max.z as f64 - b.min.z as f64;
-                key[j] = compare_key((dx * dx + dy * dy) + dz * dz);
-            }
-            for step in 0..*bits {
-                let stride = 1u64 << (bits - 1 - step);
-                for j in 0..m {
-                    let p = q[3][j];
-                    q[3][j] = p + stride * (keys[((p + stride) & 255) as usize] <= key[j]) as u64;
-                }
-            }
-        }
-        if let SizeUnit::Formula {
-            bits,
-            transform,
-            diag,
-        } = r.size
-        {
-            for (j, b) in boxes.iter().enumerate() {
-                let dx = b.max.x as f64 - b.min.x as f64;
-                let dy = b.max.y as f64 - b.min.y as f64;
-                let dz = b.max.z as f64 - b.min.z as f64;
-                let d = ((dx * dx + dy * dy) + dz * dz).sqrt();
-                let v = match transform {
-                    SizeTransform::Linear => exp_add(d, bits) / diag,
-                    SizeTransform::Sqrt => exp_add((d / diag).sqrt(), bits),
-                };
-                q[3][j] = float_to_fixed(v, bits);
-            }
-        }
-        if let Network::Fixed { .. } = r.net {
-            for j in 0..m {
-                out[j] = morton_wires(q[0][j], q[1][j], q[2][j]);
-            }
-            return;
-        }
-        let mut w = [0u64; BLOCK];
-        for c in 0..4 {
-            if r.bits[c] > 0 {
-                let off = r.offset[c];
-                for j in 0..m {
-                    w[j] |= q[c][j] << off;
-                }
-            }
-        }
-        for &(d, mask) in cols {
-            for x in w.iter_mut() {
-                let t = ((*x >> d) ^ *x) & mask;
-                *x ^= t | (t << d);
-            }
-        }
-        out.copy_from_slice(&w[..m]);
     }
 }
 
 /// Boxes per block of the fast datapath.
 pub const BLOCK: usize = 32;
 
-/// The stage list a configuration instantiates.
-fn build_stages(r: &Registers, opts: &UnitOptions) -> Vec<Stage> {
-    let axes: usize = r.axis_on.iter().filter(|&&o| o).count();
+/// The stage list a configuration instantiates: one block per stage, only what the
+/// configuration needs.
+fn build_stages(r: &Registers, opts: &UnitOptions, layout: &Layout) -> Vec<Stage> {
     let size = !matches!(r.size, SizeUnit::None);
-    let mut v = Vec::new();
-    let st = |name, latency, ii, op, hw: String| Stage {
-        name,
-        latency,
-        ii,
-        op,
-        hw,
-    };
-    v.push(st(
-        "unpack",
-        1,
-        1,
-        Op::Unpack,
-        "192-bit input register".into(),
-    ));
-    let sz = |s: &str| {
-        if size {
-            format!(" ∥ size: {s}")
-        } else {
-            String::new()
-        }
-    };
-    v.push(st(
-        "centre",
-        FP_LATENCY,
-        1,
-        Op::Centre,
-        format!("{axes}× fp64 add (lo+hi){}", sz("3× fp64 sub (hi−lo)")),
-    ));
-    v.push(st(
-        "offset",
-        FP_LATENCY,
-        1,
-        Op::Offset,
-        format!("{axes}× fp64 sub (−2·origin){}", sz("3× fp64 mul (Δ²)")),
-    ));
-    v.push(st(
-        "scale",
-        FP_LATENCY,
-        1,
-        Op::Scale,
-        format!("{axes}× fp64 mul (×scale/2){}", sz("1× fp64 add")),
-    ));
-    v.push(st(
-        "float→fixed",
-        if size { FP_LATENCY } else { 1 },
-        1,
-        Op::Fix,
-        format!(
-            "{axes}× float→fixed+clamp (64-bit field shifter){}",
-            sz("1× fp64 add (d²)")
-        ),
-    ));
+    let need: Vec<usize> = (0..3).filter(|&a| size || r.axis_on[a]).collect();
+    let mut v: Vec<Arc<dyn Block>> = vec![
+        Arc::new(blocks::Unpack { need }),
+        Arc::new(blocks::Centre {
+            axis_on: r.axis_on,
+            size,
+        }),
+        Arc::new(blocks::Offset {
+            axis_on: r.axis_on,
+            size,
+            origin2: r.origin2,
+        }),
+        Arc::new(blocks::Scale {
+            axis_on: r.axis_on,
+            size,
+            half_scale: r.half_scale,
+        }),
+        Arc::new(blocks::Fix {
+            axis_on: r.axis_on,
+            size,
+            bits: r.bits,
+            offset: r.offset,
+            programmable: !matches!(r.net, Network::Fixed { .. }),
+        }),
+    ];
     match &r.size {
         SizeUnit::None => {}
-        SizeUnit::Thresholds { bits, .. } => match opts.size_search {
-            SizeSearch::Binary => {
-                const NAMES: [&str; 8] = [
-                    "size.search0",
-                    "size.search1",
-                    "size.search2",
-                    "size.search3",
-                    "size.search4",
-                    "size.search5",
-                    "size.search6",
-                    "size.search7",
-                ];
-                for k in 0..*bits {
-                    v.push(st(
-                        NAMES[k as usize],
-                        1,
-                        1,
-                        Op::SearchStep(k),
-                        format!(
-                            "63-bit comparator + {}:1 threshold mux",
-                            1u32 << k.min(*bits)
-                        ),
-                    ));
-                }
-            }
-            SizeSearch::Bank => v.push(st(
-                "size.bank",
-                2,
-                1,
-                Op::Bank,
-                format!("{}× 63-bit comparator + popcount", (1u32 << bits) - 1),
-            )),
-        },
-        SizeUnit::Formula { transform, .. } => {
-            let (lat, ii, kind) = if opts.iterative_formula {
-                (
-                    SQRT_DIV_ITERATIVE_LATENCY,
-                    SQRT_DIV_ITERATIVE_LATENCY,
-                    "iterative",
-                )
-            } else {
-                (SQRT_DIV_PIPELINED_LATENCY, 1, "pipelined")
+        SizeUnit::Thresholds { bits, keys } => {
+            let mut k = Box::new([u64::MAX; 256]);
+            k[..keys.len()].copy_from_slice(keys);
+            v.push(Arc::new(blocks::Thresholds {
+                bits: *bits,
+                keys: k,
+                bank: opts.size_search == SizeSearch::Bank,
+            }));
+        }
+        SizeUnit::Formula {
+            bits,
+            transform,
+            diag,
+        } => {
+            let f = |op| -> Arc<dyn Block> {
+                Arc::new(blocks::Formula {
+                    op,
+                    bits: *bits,
+                    diag: *diag,
+                    stages: crate::cost::recurrence_stages(),
+                    iterative: opts.iterative_formula,
+                    iterative_latency: SQRT_DIV_ITERATIVE_LATENCY,
+                    transform: *transform,
+                })
             };
-            v.push(st(
-                "size.sqrt",
-                lat,
-                ii,
-                Op::Sqrt,
-                format!("fp64 sqrt ({kind})"),
-            ));
-            match transform {
-                SizeTransform::Linear => {
-                    v.push(st(
-                        "size.×2^S",
-                        1,
-                        1,
-                        Op::SizeScale,
-                        "11-bit exponent adder".into(),
-                    ));
-                    v.push(st(
-                        "size.div",
-                        lat,
-                        ii,
-                        Op::Div,
-                        format!("fp64 divide by D ({kind})"),
-                    ));
-                }
-                SizeTransform::Sqrt => {
-                    v.push(st(
-                        "size.div",
-                        lat,
-                        ii,
-                        Op::Div,
-                        format!("fp64 divide by D ({kind})"),
-                    ));
-                    v.push(st(
-                        "size.sqrt2",
-                        lat,
-                        ii,
-                        Op::Sqrt2,
-                        format!("fp64 sqrt ({kind})"),
-                    ));
-                    v.push(st(
-                        "size.×2^S",
-                        1,
-                        1,
-                        Op::SizeScale,
-                        "11-bit exponent adder".into(),
-                    ));
-                }
-            }
-            v.push(st(
-                "size.fix",
-                1,
-                1,
-                Op::SizeFix,
-                "float→fixed+clamp".into(),
-            ));
+            use blocks::FormulaOp::*;
+            let ops: &[blocks::FormulaOp] = match transform {
+                SizeTransform::Linear => &[Sqrt, Scale2S, Div, Fix],
+                SizeTransform::Sqrt => &[Sqrt, Div, Sqrt2, Scale2S, Fix],
+            };
+            v.extend(ops.iter().map(|&op| f(op)));
         }
     }
     match &r.net {
         Network::Fixed { .. } => {}
         Network::Benes(b) => {
-            let c = b.columns() as u8;
-            let h = c.div_ceil(2);
-            v.push(st(
-                "route.0",
-                1,
-                1,
-                Op::Route(0, h),
-                format!("Beneš columns 0..{h} of {c} ({} lanes)", b.lanes()),
-            ));
-            v.push(st(
-                "route.1",
-                1,
-                1,
-                Op::Route(h, c),
-                format!("Beneš columns {h}..{c}"),
-            ));
+            let c = b.columns();
+            // The network's stages: as many as its critical path needs at the unit's clock.
+            let n = crate::cost::benes_stages(b) as usize;
+            const NAMES: [&str; 4] = ["route.0", "route.1", "route.2", "route.3"];
+            for i in 0..n {
+                v.push(Arc::new(blocks::Route {
+                    bits: r.bits,
+                    offset: r.offset,
+                    net: blocks::RouteNet::Benes {
+                        net: b.clone(),
+                        from: c * i / n,
+                        to: c * (i + 1) / n,
+                    },
+                    stage_name: if n == 1 { "route" } else { NAMES[i.min(3)] },
+                }));
+            }
         }
-        Network::Crossbar(x) => v.push(st(
-            "route",
-            1,
-            1,
-            Op::Route(0, 0),
-            format!("{0}×{0} crossbar", x.lanes()),
-        )),
+        Network::Crossbar(x) => v.push(Arc::new(blocks::Route {
+            bits: r.bits,
+            offset: r.offset,
+            net: blocks::RouteNet::Crossbar(x.clone()),
+            stage_name: "route",
+        })),
     }
-    v.push(st(
-        "pack",
-        1,
-        1,
-        Op::Pack,
-        match r.net {
-            Network::Fixed {
-                morton: Some(per_axis),
-                ..
-            } => format!("code register (Morton wires, 3×{per_axis})"),
-            Network::Fixed { morton: None, .. } => "code register (fixed wires)".into(),
-            _ => "code register".into(),
-        },
-    ));
-    v
+    let (wires, morton) = match &r.net {
+        Network::Fixed { src, morton } => (Some(src.clone()), *morton),
+        _ => (None, None),
+    };
+    v.push(Arc::new(blocks::Pack {
+        bits: r.bits,
+        offset: r.offset,
+        len: layout.len(),
+        wires,
+        morton,
+    }));
+    v.into_iter().map(Stage::of).collect()
 }
 
 impl fmt::Display for Unit {

@@ -35,6 +35,7 @@
 #![deny(unsafe_code)]
 #![deny(missing_docs)]
 
+pub mod blocks;
 pub mod cost;
 pub mod datapath;
 mod error;
@@ -51,6 +52,7 @@ pub mod stepped;
 pub mod synth;
 pub mod vectors;
 
+pub use blocks::Block;
 pub use datapath::{Network, RoutingChoice, SizeSearch, SizeUnit, Stage, Unit, UnitOptions};
 pub use error::HwError;
 pub use memory::{Flow, MemoryConfig, Port};

@@ -236,6 +236,11 @@ impl Crossbar {
         code
     }
 
+    /// The selects: code bit `j` takes packed bit `selects()[j]`.
+    pub fn selects(&self) -> &[u8] {
+        &self.sel
+    }
+
     /// Output bits (select registers).
     pub fn lanes(&self) -> u32 {
         self.sel.len() as u32

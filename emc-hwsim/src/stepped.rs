@@ -63,7 +63,7 @@ pub fn run(unit: &Unit, boxes: &[Aabb], flow: &Flow, port: &Port) -> Result<Step
     let mut off = 0u64;
     for s in unit.stages() {
         off += s.latency as u64;
-        done_at.push((off, s.op));
+        done_at.push((off, s.block.clone()));
     }
     let depth = off;
     debug_assert_eq!(depth, flow.depth);
@@ -95,10 +95,10 @@ pub fn run(unit: &Unit, boxes: &[Aabb], flow: &Flow, port: &Port) -> Result<Step
             reserved -= count;
         }
         // Stage completions: tokens that entered `off` cycles ago finish the stage at `off`.
-        for &(off, op) in &done_at {
-            if t >= off {
-                for tok in pipe[back(cur, off as usize, slots)].iter_mut() {
-                    unit.apply(op, tok);
+        for (off, blk) in &done_at {
+            if t >= *off {
+                for tok in pipe[back(cur, *off as usize, slots)].iter_mut() {
+                    blk.eval(tok);
                 }
             }
         }

@@ -67,6 +67,11 @@ pub struct HwsimArgs {
     /// `emc_unit.vectors` (run: `iverilog -g2005 -o sim emc_unit.v emc_unit_tb.v && vvp sim`).
     #[arg(long, value_name = "DIR")]
     pub verilog: Option<std::path::PathBuf>,
+    /// With --verilog: also simulate the written RTL with Icarus Verilog (`iverilog`, `vvp`)
+    /// and dump the unit's top-level signals (its ports and the wires of `emc_unit`) to FILE
+    /// as a VCD waveform, for a viewer such as GTKWave.
+    #[arg(long, value_name = "FILE", requires = "verilog")]
+    pub vcd: Option<std::path::PathBuf>,
     /// Write test vectors of the configured unit to FILE (TestFloat-style text: six binary32
     /// box fields and the code in hex, the cycle the box enters and the cycle its code leaves).
     #[arg(long, value_name = "FILE")]
@@ -119,6 +124,13 @@ fn hardware_outputs(
             unit.lane_ii(),
             dir.display()
         );
+        if let Some(vcd) = &a.vcd {
+            let verdict = emc_hwsim::rtl::simulate(dir, Some(vcd))?;
+            println!(
+                "Icarus Verilog run of the testbench: {verdict}; waveform written to {}",
+                vcd.display()
+            );
+        }
     }
     if let Some(path) = &a.vectors {
         let v = emc_hwsim::vectors::vectors(unit, &vb);
@@ -169,23 +181,34 @@ fn hardware_outputs(
                     ..o.clone()
                 },
             )?;
+            // The gate model of the same Verilog (40 nm; its ratio to Morton is node-free).
+            let (gate_um2, _) =
+                emc_hwsim::synth::model_40nm(&emc_hwsim::rtl::write_unit(&u).top.graph().price());
             rows.push((
                 format!("{s} ({})", u.registers().net.name()),
                 g,
                 cost(&u),
                 u.depth(),
+                gate_um2,
             ));
         }
-        println!("EMC unit vs plain Morton unit (OSU 0.18 µm synthesis; energy from the model at 40 nm):");
-        println!("| unit | cells | area µm² | vs Morton | latency cycles | critical path ns | max clock MHz | pJ/code (model) | vs Morton |");
-        println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|");
+        println!(
+            "EMC unit vs plain Morton unit (OSU 0.18 µm synthesis; area vs Morton also from the gate \
+             model of the same Verilog and from cost::cost()'s Aladdin anchors; energy from \
+             cost::cost() at 40 nm, Aladdin anchors):"
+        );
+        println!("| unit | cells | area µm² | vs Morton | gate model | anchors | latency cycles | critical path ns | max clock MHz | pJ/code (anchors) | vs Morton |");
+        println!("|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|");
         let (ba, be) = (rows[0].1.area_um2, rows[0].2.energy_pj());
-        for (label, g, c, depth) in &rows {
+        let (bg, bc) = (rows[0].4, rows[0].2.area_um2());
+        for (label, g, c, depth, gate_um2) in &rows {
             println!(
-                "| {label} | {} | {:.0} | {:.2}× | {depth} | {:.2} | {:.0} | {:.1} | {:.2}× |",
+                "| {label} | {} | {:.0} | {:.2}× | {:.2}× | {:.2}× | {depth} | {:.2} | {:.0} | {:.1} | {:.2}× |",
                 g.cells,
                 g.area_um2,
                 g.area_um2 / ba,
+                gate_um2 / bg,
+                c.area_um2() / bc,
                 g.delay_ns,
                 1000.0 / g.delay_ns,
                 c.energy_pj(),
