@@ -8,6 +8,7 @@
 
 pub mod candidates;
 pub mod estimate;
+#[cfg(feature = "cli")]
 pub mod report;
 
 use std::fmt;
