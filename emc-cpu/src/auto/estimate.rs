@@ -32,6 +32,7 @@ pub const LARGE_PER_UNIFORM: f64 = 0.25;
 /// Dense windows: sub-volumes taken at the scene's full density, whose trees stand in for the
 /// deep levels of the full tree that the sparse sample does not reach.
 pub const WINDOWS: usize = 3;
+const _: () = assert!(WINDOWS <= super::scan::MAX_WINDOWS);
 /// Boxes per window, as a multiple of the sample's spacing (scene triangles per sample
 /// triangle): the window's trees then hold several levels below the sample's.
 pub const WINDOW_PER_SPACING: usize = 4;
@@ -329,8 +330,6 @@ struct WindowSpec {
     radius: Vec<f64>,
     /// f32 bounds of `min + max` around each centre, widened past the f32 rounding.
     pre: Vec<(Vec3A, Vec3A)>,
-    /// Their union: most boxes fail this one test.
-    union: (Vec3A, Vec3A),
 }
 
 impl WindowSpec {
@@ -373,16 +372,11 @@ impl WindowSpec {
                 (v(-1.0), v(1.0))
             })
             .collect::<Vec<(Vec3A, Vec3A)>>();
-        let union = pre.iter().fold(
-            (Vec3A::splat(f32::INFINITY), Vec3A::splat(f32::NEG_INFINITY)),
-            |(lo, hi), &(l, h)| (lo.min(l), hi.max(h)),
-        );
         Some(WindowSpec {
             w,
             centres,
             radius,
             pre,
-            union,
         })
     }
 
@@ -390,9 +384,6 @@ impl WindowSpec {
     #[inline(always)]
     fn hit(&self, b: &Aabb, id: u32, found: &mut Vec<WindowHit>) {
         let c32 = Vec3A::from(b.min) + Vec3A::from(b.max);
-        if !(c32.cmpge(self.union.0) & c32.cmple(self.union.1)).all() {
-            return;
-        }
         for (wi, &(lo, hi)) in self.pre.iter().enumerate() {
             if !(c32.cmpge(lo) & c32.cmple(hi)).all() {
                 continue;
@@ -450,24 +441,18 @@ fn largest(
         .map(|(c, chunk)| {
             let base = c * PASS_CHUNK;
             let mut found = Vec::new();
-            // The windows' union box (an empty one without windows), tested per box in the
-            // same loop; the few inside are measured exactly by `WindowSpec::hit`.
-            let (ulo, uhi) = win.map_or(([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]), |w| {
-                (w.union.0.to_array(), w.union.1.to_array())
+            // The windows' boxes (none without windows), tested per box in the same pass; the
+            // few inside are measured exactly by `WindowSpec::hit`.
+            let wins: Vec<super::scan::Window> = win.map_or(Vec::new(), |w| {
+                w.pre
+                    .iter()
+                    .map(|(lo, hi)| (lo.to_array(), hi.to_array()))
+                    .collect()
             });
             let mut hit = |k: usize| {
                 if let Some(ws) = win {
                     ws.hit(&chunk[k], (base + k) as u32, &mut found);
                 }
-            };
-            let inside = |b: &Aabb| {
-                let c = [b.min.x + b.max.x, b.min.y + b.max.y, b.min.z + b.max.z];
-                (c[0] >= ulo[0])
-                    & (c[0] <= uhi[0])
-                    & (c[1] >= ulo[1])
-                    & (c[1] <= uhi[1])
-                    & (c[2] >= ulo[2])
-                    & (c[2] <= uhi[2])
             };
             let mut big = Vec::new();
             let mut take = |k: usize| {
@@ -476,21 +461,10 @@ fn largest(
                     big.push((base + k) as u32);
                 }
             };
-            // Eight boxes per step: the squared diagonals as one f32 vector, then bit masks
-            // of the boxes that pass the size prefilter and the windows' union.
-            let mut blocks = chunk.chunks_exact(8);
-            for (j, blk) in blocks.by_ref().enumerate() {
-                let mut d2 = [0f32; 8];
-                let mut wmask = 0u32;
-                for (l, (o, b)) in d2.iter_mut().zip(blk).enumerate() {
-                    let d = b.max - b.min;
-                    *o = d.x * d.x + d.y * d.y + d.z * d.z;
-                    wmask |= (inside(b) as u32) << l;
-                }
-                let mut mask = 0u32;
-                for (l, &x) in d2.iter().enumerate() {
-                    mask |= ((x >= pre) as u32) << l;
-                }
+            // Eight boxes per step: bit masks of the boxes that pass the size prefilter and
+            // a window's box ([`super::scan`]).
+            for (j, blk) in chunk.chunks(8).enumerate() {
+                let (mut mask, mut wmask) = super::scan::block_masks(blk, pre, &wins);
                 while mask != 0 {
                     take(8 * j + mask.trailing_zeros() as usize);
                     mask &= mask - 1;
@@ -498,16 +472,6 @@ fn largest(
                 while wmask != 0 {
                     hit(8 * j + wmask.trailing_zeros() as usize);
                     wmask &= wmask - 1;
-                }
-            }
-            let done = chunk.len() - blocks.remainder().len();
-            for (k, b) in chunk.iter().enumerate().skip(done) {
-                let d = b.max - b.min;
-                if d.x * d.x + d.y * d.y + d.z * d.z >= pre {
-                    take(k);
-                }
-                if inside(b) {
-                    hit(k);
                 }
             }
             (big, found)
