@@ -463,17 +463,16 @@ fn largest(
             };
             // Eight boxes per step: bit masks of the boxes that pass the size prefilter and
             // a window's box ([`super::scan`]).
-            for (j, blk) in chunk.chunks(8).enumerate() {
-                let (mut mask, mut wmask) = super::scan::block_masks(blk, pre, &wins);
+            super::scan::for_each_block(chunk, pre, &wins, |first, mut mask, mut wmask| {
                 while mask != 0 {
-                    take(8 * j + mask.trailing_zeros() as usize);
+                    take(first + mask.trailing_zeros() as usize);
                     mask &= mask - 1;
                 }
                 while wmask != 0 {
-                    hit(8 * j + wmask.trailing_zeros() as usize);
+                    hit(first + wmask.trailing_zeros() as usize);
                     wmask &= wmask - 1;
                 }
-            }
+            });
             (big, found)
         })
         .collect();
