@@ -7,7 +7,7 @@ use std::time::{Duration, Instant};
 
 use criterion::{BenchmarkId, Criterion, Throughput};
 use emc_core::{Aabb, LayoutSpec};
-use emc_cpu::build::{build_aabbs, BuildOptions, Builder};
+use emc_cpu::build::{build_aabbs, Builder, PipelineOptions};
 use emc_cpu::bvh::atrbvh::{restructure, AtrConfig};
 use emc_cpu::bvh::refit::CollapseParams;
 use emc_cpu::bvh::{sah_cost, Bvh, SahConstants};
@@ -16,12 +16,11 @@ use emc_cpu::cputime::thread_cpu_time;
 /// The scene's name, its boxes and its morton63 LBVH with one primitive per leaf.
 fn input() -> (String, Vec<Aabb>, Bvh) {
     let (spec, aabbs) = emc_benches::bathroom_or_mixed();
-    let opts = BuildOptions {
-        layout: LayoutSpec::Morton63.into(),
-        builder: Builder::Lbvh,
-        threads: 2,
-        collapse: CollapseParams::NONE,
-    };
+    let opts = PipelineOptions::default()
+        .with_layout(LayoutSpec::Morton63)
+        .with_builder(Builder::Lbvh)
+        .with_threads(2)
+        .with_collapse(CollapseParams::NONE);
     let bvh = build_aabbs(aabbs.clone(), &opts).expect("LBVH builds").bvh;
     (spec, aabbs, bvh)
 }

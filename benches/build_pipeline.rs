@@ -7,20 +7,18 @@
 use criterion::{BenchmarkId, Criterion, Throughput};
 use emc_core::{Aabb, LayoutSpec};
 use emc_cpu::build::{
-    build_aabbs, build_aabbs_in, BuildArena, BuildOptions, BuildReport, Builder, Phase,
+    build_aabbs, build_aabbs_in, BuildArena, BuildReport, Builder, Phase, PipelineOptions,
 };
 
 fn input() -> (String, Vec<Aabb>) {
     emc_benches::bathroom_or_mixed()
 }
 
-fn opts(builder: Builder, threads: usize) -> BuildOptions {
-    BuildOptions {
-        layout: LayoutSpec::Emc64Var.into(),
-        builder,
-        threads,
-        ..BuildOptions::default()
-    }
+fn opts(builder: Builder, threads: usize) -> PipelineOptions {
+    PipelineOptions::default()
+        .with_layout(LayoutSpec::Emc64Var)
+        .with_builder(builder)
+        .with_threads(threads)
 }
 
 /// Per-phase thread-CPU milliseconds of the median (by total CPU) of 5 builds, cold and warm.

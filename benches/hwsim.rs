@@ -13,10 +13,7 @@ use emc_hwsim::{MemoryConfig, Mode, Unit, UnitOptions};
 fn boxes(prims: usize) -> Vec<emc_core::Aabb> {
     load_with(
         "builtin:uniform",
-        &SceneOptions {
-            prims: Some(prims),
-            ..SceneOptions::default()
-        },
+        &SceneOptions::default().with_prims(prims),
     )
     .expect("built-in scene")
     .aabbs()

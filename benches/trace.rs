@@ -29,14 +29,7 @@ struct Workload {
 }
 
 fn workload(spec: &str, prims: Option<usize>) -> Option<Workload> {
-    let s = scene::load_with(
-        spec,
-        &SceneOptions {
-            prims,
-            ..SceneOptions::default()
-        },
-    )
-    .ok()?;
+    let s = scene::load_with(spec, &SceneOptions::default().with_prims(prims)).ok()?;
     let tris: Vec<_> = (0..s.triangle_count()).map(|i| s.triangle(i)).collect();
     let accel = Accel::build(
         &s.vertices,

@@ -110,10 +110,7 @@ fn check(name: &str, a: &Accel, rays: &[Ray], want: &[(Option<Hit>, bool)]) {
 }
 
 fn build(s: &Scene, preset: Preset, width: usize) -> Accel {
-    let opts = BuildOptions {
-        width: Some(width),
-        ..BuildOptions::preset(preset)
-    };
+    let opts = BuildOptions::preset(preset).with_width(width);
     let a = Accel::build(&s.vertices, &s.indices, &opts)
         .unwrap_or_else(|e| panic!("{preset:?}/{width} builds: {e}"));
     a.wide_bvh()
@@ -145,10 +142,7 @@ fn every_preset_equals_brute_force_on_builtin_scenes() {
     for name in builtin::NAMES {
         let s = scene::load_with(
             &format!("builtin:{name}"),
-            &SceneOptions {
-                prims: Some(4000),
-                ..SceneOptions::default()
-            },
+            &SceneOptions::default().with_prims(4000),
         )
         .unwrap();
         check_scene(&format!("builtin:{name}"), &s, 10_000);
@@ -161,10 +155,7 @@ fn every_preset_equals_brute_force_on_hard_scenes() {
     for name in builtin::HARD_NAMES {
         let Ok(s) = scene::load_with(
             &format!("builtin:{name}"),
-            &SceneOptions {
-                prims: Some(2000),
-                ..SceneOptions::default()
-            },
+            &SceneOptions::default().with_prims(2000),
         ) else {
             // builtin:hard-nonfinite is refused at load time (its own test covers it).
             continue;
@@ -222,10 +213,7 @@ fn rebuild_equals_a_fresh_build_of_the_moved_mesh() {
     for name in ["mixed", "city"] {
         let s = scene::load_with(
             &format!("builtin:{name}"),
-            &SceneOptions {
-                prims: Some(5000),
-                ..SceneOptions::default()
-            },
+            &SceneOptions::default().with_prims(5000),
         )
         .unwrap();
         for preset in PRESETS {
@@ -261,14 +249,7 @@ fn rebuild_equals_a_fresh_build_of_the_moved_mesh() {
 
 #[test]
 fn rebuild_refuses_bad_vertices_and_keeps_the_tree() {
-    let s = scene::load_with(
-        "builtin:sphere",
-        &SceneOptions {
-            prims: Some(500),
-            ..SceneOptions::default()
-        },
-    )
-    .unwrap();
+    let s = scene::load_with("builtin:sphere", &SceneOptions::default().with_prims(500)).unwrap();
     for preset in PRESETS {
         let mut a = build(&s, preset, 8);
         let before = a.wide_bvh().clone();
@@ -297,6 +278,96 @@ fn rebuild_refuses_bad_vertices_and_keeps_the_tree() {
     }
 }
 
+/// Refit: to the unmoved mesh it gives the build's tree bit for bit (every box is the union of
+/// its triangles' boxes, padded alike); to moved meshes, frame after frame, a valid tree that
+/// answers every ray as brute force does, on both widths and every preset, on one and three
+/// threads alike.
+#[test]
+fn refit_keeps_the_topology_and_follows_the_moved_mesh() {
+    for name in ["mixed", "city"] {
+        let s = scene::load_with(
+            &format!("builtin:{name}"),
+            &SceneOptions::default().with_prims(5000),
+        )
+        .unwrap();
+        for preset in PRESETS {
+            for width in [4, 8] {
+                let label = format!("{name} {preset:?} width {width}");
+                let mut a = build(&s, preset, width);
+                let before = a.wide_bvh().clone();
+                a.refit(&s.vertices).unwrap();
+                let x = a.wide_bvh();
+                assert!(
+                    x.nodes == before.nodes
+                        && x.nodes8 == before.nodes8
+                        && x.packets == before.packets
+                        && x.max_abs == before.max_abs,
+                    "{label}: refit to the same vertices changed the tree"
+                );
+                for frame in 1..=3 {
+                    let v = moved(&s.vertices, frame as f32);
+                    a.refit(&v).unwrap();
+                    let three = rayon::ThreadPoolBuilder::new()
+                        .num_threads(3)
+                        .build()
+                        .unwrap();
+                    let mut b = build(&s, preset, width);
+                    three.install(|| b.refit(&v)).unwrap();
+                    assert!(
+                        a.wide_bvh().nodes == b.wide_bvh().nodes
+                            && a.wide_bvh().nodes8 == b.wide_bvh().nodes8,
+                        "{label} frame {frame}: the refit depends on the thread count"
+                    );
+                    // Same topology: the child codes never change.
+                    let codes = |w: &emc_cpu::trace::WideBvh| {
+                        (
+                            w.nodes.iter().map(|n| n.child).collect::<Vec<_>>(),
+                            w.nodes8.iter().map(|n| n.child).collect::<Vec<_>>(),
+                        )
+                    };
+                    assert_eq!(codes(a.wide_bvh()), codes(&before), "{label}");
+                    a.wide_bvh()
+                        .validate(a.triangle_count(), |i| a.triangle(i))
+                        .unwrap_or_else(|e| panic!("{label} frame {frame}: {e}"));
+                    let moved_scene = Scene {
+                        vertices: v.clone(),
+                        ..s.clone()
+                    };
+                    let tris = triangles(&moved_scene);
+                    let rays = rays_for(&tris, 2000, 40 + frame);
+                    check(
+                        &format!("{label} refit frame {frame}"),
+                        &a,
+                        &rays,
+                        &brute_force(&tris, &rays),
+                    );
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn refit_refuses_bad_vertices_and_keeps_the_tree() {
+    let s = scene::load_with("builtin:sphere", &SceneOptions::default().with_prims(500)).unwrap();
+    for preset in PRESETS {
+        let mut a = build(&s, preset, 8);
+        let before = a.wide_bvh().clone();
+        assert!(matches!(
+            a.refit(&s.vertices[1..]),
+            Err(TraceError::VertexCount { .. })
+        ));
+        let mut inf = s.vertices.clone();
+        inf[7].z = f32::INFINITY;
+        let r = a.refit(&inf);
+        assert!(
+            matches!(r, Err(TraceError::NonFinite(_))),
+            "{preset:?}: {r:?}"
+        );
+        assert!(a.wide_bvh().nodes8 == before.nodes8 && a.wide_bvh().packets == before.packets);
+    }
+}
+
 #[test]
 fn bad_meshes_and_options_are_refused() {
     let v = [Vec3::ZERO, Vec3::X, Vec3::Y];
@@ -319,10 +390,7 @@ fn bad_meshes_and_options_are_refused() {
             Accel::build(&inf, &[[0, 1, 2]], &o),
             Err(TraceError::NonFinite(0))
         ));
-        let w = BuildOptions {
-            width: Some(6),
-            ..o
-        };
+        let w = o.with_width(6);
         assert!(matches!(
             Accel::build(&v, &[[0, 1, 2]], &w),
             Err(TraceError::Width(6))
@@ -330,10 +398,7 @@ fn bad_meshes_and_options_are_refused() {
     }
     // The BVH2 presets (the fast one has no leaf-size option of its own).
     for preset in [Preset::Balanced, Preset::Quality] {
-        let l = BuildOptions {
-            leaf_size: Some(0),
-            ..BuildOptions::preset(preset)
-        };
+        let l = BuildOptions::preset(preset).with_leaf_size(0);
         assert!(matches!(
             Accel::build(&v, &[[0, 1, 2]], &l),
             Err(TraceError::ZeroLeafSize)
@@ -346,19 +411,13 @@ fn builds_are_identical_at_any_thread_count() {
     // Large enough for many blocks (the parallel block phase) on every preset.
     let s = scene::load_with(
         "builtin:mixed",
-        &SceneOptions {
-            prims: Some(120_000),
-            ..SceneOptions::default()
-        },
+        &SceneOptions::default().with_prims(120_000),
     )
     .unwrap();
     for preset in PRESETS {
         for width in [4, 8] {
             let at = |threads| {
-                let opts = BuildOptions {
-                    width: Some(width),
-                    ..BuildOptions::preset(preset)
-                };
+                let opts = BuildOptions::preset(preset).with_width(width);
                 let pool = rayon::ThreadPoolBuilder::new()
                     .num_threads(threads)
                     .build()

@@ -8,7 +8,7 @@
 
 use emc_core::Aabb;
 use emc_core::LayoutSpec;
-use emc_cpu::build::{build_aabbs, BuildOptions, Builder};
+use emc_cpu::build::{build_aabbs, Builder, PipelineOptions};
 use emc_cpu::bvh::atrbvh::{restructure, AtrConfig, AtrError, AtrStats};
 use emc_cpu::bvh::binned_sah::{build_binned_sah, DEFAULT_BINS};
 use emc_cpu::bvh::collapse::collapse_bvh;
@@ -417,30 +417,12 @@ fn bad_config_is_an_error_and_leaves_the_tree_alone() {
     let aabbs = random_boxes(100, 1);
     let bvh = lbvh_like(&aabbs);
     let bad = [
-        AtrConfig {
-            treelet_size: 6,
-            ..AtrConfig::default()
-        },
-        AtrConfig {
-            treelet_size: 10,
-            ..AtrConfig::default()
-        },
-        AtrConfig {
-            gamma: Some(0),
-            ..AtrConfig::default()
-        },
-        AtrConfig {
-            ct: f64::NAN,
-            ..AtrConfig::default()
-        },
-        AtrConfig {
-            ci: 0.0,
-            ..AtrConfig::default()
-        },
-        AtrConfig {
-            ct: f64::INFINITY,
-            ..AtrConfig::default()
-        },
+        AtrConfig::default().with_treelet_size(6),
+        AtrConfig::default().with_treelet_size(10),
+        AtrConfig::default().with_gamma(Some(0)),
+        AtrConfig::default().with_ct(f64::NAN),
+        AtrConfig::default().with_ci(0.0),
+        AtrConfig::default().with_ct(f64::INFINITY),
     ];
     for cfg in bad {
         let mut t = bvh.clone();
@@ -450,10 +432,7 @@ fn bad_config_is_an_error_and_leaves_the_tree_alone() {
         assert_eq!(bits(&t), bits(&bvh));
     }
     for size in 7..=9 {
-        let cfg = AtrConfig {
-            treelet_size: size,
-            ..AtrConfig::default()
-        };
+        let cfg = AtrConfig::default().with_treelet_size(size);
         assert!(cfg.check().is_ok());
         assert_eq!(cfg.gamma_at(0), size as u32);
         assert_eq!(cfg.gamma_at(2), 4 * size as u32);
@@ -586,11 +565,9 @@ fn structured_scenes() {
             ("random", random_tree(aabbs, 3)),
         ] {
             for size in 7..=9 {
-                let cfg = AtrConfig {
-                    treelet_size: size,
-                    iterations: 3,
-                    ..AtrConfig::default()
-                };
+                let cfg = AtrConfig::default()
+                    .with_treelet_size(size)
+                    .with_iterations(3);
                 let (_, s) = check_restructure(&bvh, aabbs, &cfg);
                 println!(
                     "{name} {what} size {size}: SAH {:.4} -> {:.4}, {} of {} treelets improved",
@@ -653,7 +630,7 @@ proptest! {
                      random_topology in any::<bool>()) {
         let aabbs = random_boxes(n, seed);
         let bvh = if random_topology { random_tree(&aabbs, seed) } else { lbvh_like(&aabbs) };
-        let cfg = AtrConfig { treelet_size: size, iterations, gamma, ..AtrConfig::default() };
+        let cfg = AtrConfig::default().with_treelet_size(size).with_iterations(iterations).with_gamma(gamma);
         check_restructure(&bvh, &aabbs, &cfg);
     }
 }
@@ -694,12 +671,11 @@ fn gap_on_scene(name: &str) {
     };
     let scene = emc_cpu::scene::load(path.to_str().expect("utf-8 path")).expect("scene loads");
     let aabbs = scene.aabbs();
-    let opts = BuildOptions {
-        layout: LayoutSpec::Morton63.into(),
-        builder: Builder::Lbvh,
-        threads: 2,
-        collapse: CollapseParams::NONE,
-    };
+    let opts = PipelineOptions::default()
+        .with_layout(LayoutSpec::Morton63)
+        .with_builder(Builder::Lbvh)
+        .with_threads(2)
+        .with_collapse(CollapseParams::NONE);
     let lbvh = build_aabbs(aabbs.clone(), &opts).expect("LBVH builds").bvh;
     // The test-only builder quantises a little differently (f32 centroids), so its SAH agrees
     // only closely with the library's normative one.

@@ -6,7 +6,7 @@
 use emc_core::glam::Vec3;
 use emc_core::{Aabb, Frame, LayoutSpec, Normalization};
 use emc_cpu::auto::{candidates::Rule, choose, AutoChoice, AUTO};
-use emc_cpu::build::{build_aabbs, scene_bounds, BuildOptions, Builder};
+use emc_cpu::build::{build_aabbs, scene_bounds, Builder, PipelineOptions};
 use emc_cpu::bvh::refit::CollapseParams;
 
 /// Boxes per constructed scene: enough that auto samples (it takes every box of a scene of
@@ -92,13 +92,12 @@ fn choice_on(boxes: &[Aabb], threads: usize) -> AutoChoice {
         .expect("auto chooses")
 }
 
-fn opts(layout: emc_cpu::auto::LayoutChoice, threads: usize) -> BuildOptions {
-    BuildOptions {
-        layout,
-        builder: Builder::Lbvh,
-        threads,
-        collapse: CollapseParams::NONE,
-    }
+fn opts(layout: emc_cpu::auto::LayoutChoice, threads: usize) -> PipelineOptions {
+    PipelineOptions::default()
+        .with_layout(layout)
+        .with_builder(Builder::Lbvh)
+        .with_threads(threads)
+        .with_collapse(CollapseParams::NONE)
 }
 
 /// Full-build headline SAH.

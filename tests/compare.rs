@@ -430,14 +430,8 @@ mod peers {
     /// `rebuild` of each side keeps answering as the fresh build does.
     #[test]
     fn rebuilds_trace_like_fresh_builds() {
-        let s = scene::load_with(
-            "builtin:mixed",
-            &SceneOptions {
-                prims: Some(5000),
-                ..SceneOptions::default()
-            },
-        )
-        .unwrap();
+        let s =
+            scene::load_with("builtin:mixed", &SceneOptions::default().with_prims(5000)).unwrap();
         let p = Protocol::new(triangles(&s), CameraMode::Outside, 64);
         let dev = Device::new(1).unwrap();
         let mesh = Mesh::new(&s.vertices, &s.indices).unwrap();
@@ -511,14 +505,8 @@ mod peers {
             .status()
             .expect("sh runs");
         assert!(st.success(), "../shared/peers/build.sh failed");
-        let generated = scene::load_with(
-            "builtin:city",
-            &SceneOptions {
-                prims: Some(4000),
-                ..SceneOptions::default()
-            },
-        )
-        .unwrap();
+        let generated =
+            scene::load_with("builtin:city", &SceneOptions::default().with_prims(4000)).unwrap();
         let obj = dir.join("city.obj");
         scene::obj::save_obj(&generated, &obj).unwrap();
         let s = scene::load(obj.to_str().unwrap()).unwrap();

@@ -3,7 +3,7 @@
 //! their triangles exactly, both SAH figures are finite, and tracing equals brute force.
 
 use emc_core::{Aabb, LayoutSpec};
-use emc_cpu::build::{build_scene, encoder_for, BuildOptions, BuildOutput, Builder};
+use emc_cpu::build::{build_scene, encoder_for, BuildOutput, Builder, PipelineOptions};
 use emc_cpu::scene::{self, builtin::HARD_NAMES, Scene, SceneOptions};
 use emc_cpu::trace::intersect::{brute_force_closest, brute_force_occluded, Ray};
 use emc_cpu::trace::Accel;
@@ -14,10 +14,7 @@ use rayon::prelude::*;
 fn load(name: &str, prims: Option<usize>) -> Scene {
     scene::load_with(
         &format!("builtin:{name}"),
-        &SceneOptions {
-            prims,
-            ..SceneOptions::default()
-        },
+        &SceneOptions::default().with_prims(prims),
     )
     .unwrap_or_else(|e| panic!("builtin:{name}: {e}"))
 }
@@ -126,13 +123,11 @@ fn check_trace(
     );
 }
 
-fn opts(builder: Builder, layout: LayoutSpec) -> BuildOptions {
-    BuildOptions {
-        builder,
-        layout: layout.into(),
-        threads: 2,
-        ..BuildOptions::default()
-    }
+fn opts(builder: Builder, layout: LayoutSpec) -> PipelineOptions {
+    PipelineOptions::default()
+        .with_builder(builder)
+        .with_layout(layout)
+        .with_threads(2)
 }
 
 /// Every (builder, layout) pair: the three LBVH builders on each standard layout, binned SAH

@@ -525,10 +525,7 @@ fn builtin_scenes_are_bit_exact() {
     for name in emc_cpu::scene::builtin::NAMES {
         let scene = load_with(
             &format!("builtin:{name}"),
-            &SceneOptions {
-                prims: Some(20_000),
-                ..SceneOptions::default()
-            },
+            &SceneOptions::default().with_prims(20_000),
         )
         .unwrap();
         let boxes = scene.aabbs();

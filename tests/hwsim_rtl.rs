@@ -46,10 +46,7 @@ fn scratch(name: &str) -> PathBuf {
 /// The scene the units are configured for, and the vector boxes: scene boxes and finite
 /// boxes of every hard-case scene (builtin catalogue and the suite's own), as probes.
 fn scene_and_vectors() -> (Frame, Vec<Aabb>) {
-    let opts = SceneOptions {
-        prims: Some(3000),
-        ..SceneOptions::default()
-    };
+    let opts = SceneOptions::default().with_prims(3000);
     let scene = load_with("builtin:mixed", &opts).unwrap();
     let boxes = scene.aabbs();
     let frame = Frame::new(&boxes).unwrap();
@@ -57,10 +54,7 @@ fn scene_and_vectors() -> (Frame, Vec<Aabb>) {
     for name in builtin::HARD_NAMES {
         let Ok(s) = load_with(
             &format!("builtin:{name}"),
-            &SceneOptions {
-                prims: Some(200),
-                ..SceneOptions::default()
-            },
+            &SceneOptions::default().with_prims(200),
         ) else {
             continue;
         };

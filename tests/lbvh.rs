@@ -9,7 +9,7 @@
 use emc_core::{Aabb, LayoutSpec};
 use emc_cpu::build::{
     build_aabbs, build_aabbs_in, encode_codes, encoder_for, lbvh_tree, sort_codes, BuildArena,
-    BuildOptions, BuildOutput, Builder, Phase,
+    BuildOutput, Builder, Phase, PipelineOptions,
 };
 use emc_cpu::bvh::refit::{gather_sorted, CollapseParams, RadixTree};
 use emc_cpu::bvh::{sah_cost, Bvh, Node, SahConstants};
@@ -28,29 +28,22 @@ fn lcg(s: &mut u64) -> u64 {
     *s >> 16
 }
 
-fn opts(layout: LayoutSpec, builder: Builder, threads: usize, max_leaf: u32) -> BuildOptions {
-    BuildOptions {
-        layout: layout.into(),
-        builder,
-        threads,
-        collapse: CollapseParams {
-            max_leaf,
-            ..CollapseParams::default()
-        },
-    }
+fn opts(layout: LayoutSpec, builder: Builder, threads: usize, max_leaf: u32) -> PipelineOptions {
+    PipelineOptions::default()
+        .with_layout(layout)
+        .with_builder(builder)
+        .with_threads(threads)
+        .with_collapse(CollapseParams::default().with_max_leaf(max_leaf))
 }
 
-fn build(aabbs: &[Aabb], o: BuildOptions) -> BuildOutput {
+fn build(aabbs: &[Aabb], o: PipelineOptions) -> BuildOutput {
     build_aabbs(aabbs.to_vec(), &o).unwrap_or_else(|e| panic!("build failed: {e}"))
 }
 
 fn builtin(name: &str, prims: usize) -> Vec<Aabb> {
     load_with(
         &format!("builtin:{name}"),
-        &SceneOptions {
-            prims: Some(prims),
-            ..SceneOptions::default()
-        },
+        &SceneOptions::default().with_prims(prims),
     )
     .unwrap()
     .aabbs()
@@ -208,7 +201,7 @@ fn karras_equals_apetrei_on_real_layouts() {
 // ---------------------------------------------------------------------------------------------
 // validate on builders, layouts and hard cases
 
-fn check_valid(aabbs: &[Aabb], o: BuildOptions, what: &str) -> BuildOutput {
+fn check_valid(aabbs: &[Aabb], o: PipelineOptions, what: &str) -> BuildOutput {
     let out = build(aabbs, o);
     let s = out
         .bvh
@@ -472,11 +465,11 @@ fn zero_threads_and_zero_leaf_size_are_errors() {
     )
     .is_err());
     assert!(build_aabbs(aabbs, &opts(LayoutSpec::Morton63, Builder::Lbvh, 1, 0)).is_err());
-    assert!(build_aabbs(Vec::new(), &BuildOptions::default()).is_err());
+    assert!(build_aabbs(Vec::new(), &PipelineOptions::default()).is_err());
     assert!("lbvh-foo".parse::<Builder>().is_err());
     let mut bad = all_identical(3);
     bad[1].min.x = f32::NAN;
-    assert!(build_aabbs(bad, &BuildOptions::default()).is_err());
+    assert!(build_aabbs(bad, &PipelineOptions::default()).is_err());
 }
 
 // ---------------------------------------------------------------------------------------------

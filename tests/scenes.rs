@@ -267,7 +267,7 @@ fn zst_round_trip_and_plain_round_trip() {
         ("city", Some(5000)),
         ("mixed", Some(3000)),
     ] {
-        let opts = SceneOptions { prims, seed: 7 };
+        let opts = SceneOptions::default().with_prims(prims).with_seed(7);
         let s = scene::load_with(&format!("builtin:{name}"), &opts).unwrap();
         for ext in ["obj", "obj.zst"] {
             let p = tmp_file(&format!("rt-{name}.{ext}"), b"");
@@ -288,7 +288,11 @@ fn zst_round_trip_and_plain_round_trip() {
 }
 
 fn gen(name: &str, prims: Option<usize>, seed: u64) -> Scene {
-    scene::load_with(&format!("builtin:{name}"), &SceneOptions { prims, seed }).unwrap()
+    scene::load_with(
+        &format!("builtin:{name}"),
+        &SceneOptions::default().with_prims(prims).with_seed(seed),
+    )
+    .unwrap()
 }
 
 fn bit_eq(a: &Scene, b: &Scene) -> bool {
@@ -331,10 +335,7 @@ fn builtins_are_deterministic_and_sized_as_documented() {
         }
         let e = scene::load_with(
             &format!("builtin:{name}"),
-            &SceneOptions {
-                prims: Some(0),
-                seed: 0,
-            },
+            &SceneOptions::default().with_prims(0).with_seed(0),
         )
         .unwrap_err();
         assert!(matches!(e, SceneError::ZeroPrims(_)), "{e:?}");

@@ -150,13 +150,11 @@ fn all_bvhs(tris: &[[Vec3; 3]]) -> Vec<(String, WideBvh)> {
         configs.push((Builder::Lbvh, Some(l), true, 8));
     }
     for (builder, layout, restructure, leaf) in configs {
-        let opts = BuildOptions {
-            builder: Some(builder),
-            layout: layout.map(Into::into),
-            restructure: Some(restructure),
-            leaf_size: Some(leaf),
-            ..BuildOptions::preset(Preset::Quality)
-        };
+        let mut opts = BuildOptions::preset(Preset::Quality)
+            .with_builder(builder)
+            .with_restructure(restructure)
+            .with_leaf_size(leaf);
+        opts.layout = layout.map(Into::into);
         let name = format!(
             "{builder}/{}/atr={restructure}/leaf{leaf}",
             layout.map_or("-".to_string(), |l| l.to_string())
@@ -277,10 +275,7 @@ fn check_against_with(
 fn builtin(name: &str, prims: usize) -> Scene {
     scene::load_with(
         &format!("builtin:{name}"),
-        &SceneOptions {
-            prims: Some(prims),
-            ..SceneOptions::default()
-        },
+        &SceneOptions::default().with_prims(prims),
     )
     .expect("built-in scene")
 }
@@ -533,16 +528,7 @@ fn api_rejects_bad_meshes() {
         Accel::build(&nan, &[[0, 1, 2]], &o),
         Err(TraceError::NonFinite(0))
     ));
-    for bad in [
-        BuildOptions {
-            leaf_size: Some(0),
-            ..o
-        },
-        BuildOptions {
-            width: Some(3),
-            ..o
-        },
-    ] {
+    for bad in [o.with_leaf_size(0), o.with_width(3)] {
         assert!(Accel::build(&v, &[[0, 1, 2]], &bad).is_err(), "{bad:?}");
     }
 }
@@ -919,12 +905,10 @@ fn shared_scenes_equal_brute_force() {
             (Builder::LbvhApetrei, "emc64-var", false),
             (Builder::Lbvh, "emc64-var", true),
         ] {
-            let opts = BuildOptions {
-                builder: Some(builder),
-                layout: Some(layout.parse().unwrap()),
-                restructure: Some(restructure),
-                ..BuildOptions::default()
-            };
+            let opts = BuildOptions::default()
+                .with_builder(builder)
+                .with_layout(layout.parse::<emc_cpu::LayoutChoice>().unwrap())
+                .with_restructure(restructure);
             let b = Accel::from_triangles(tris.clone(), &opts).unwrap();
             let label = format!("{name} {builder}/{layout}/atr={restructure}");
             check_against(&label, b.wide_bvh(), &rays, &want);
@@ -939,10 +923,7 @@ fn hard_builtin_scenes_equal_brute_force() {
     for name in scene::builtin::HARD_NAMES {
         let Ok(s) = scene::load_with(
             &format!("builtin:{name}"),
-            &SceneOptions {
-                prims: Some(2000),
-                ..SceneOptions::default()
-            },
+            &SceneOptions::default().with_prims(2000),
         ) else {
             eprintln!("builtin:{name} does not load at 2000 triangles; skipped");
             continue;
@@ -955,11 +936,9 @@ fn hard_builtin_scenes_equal_brute_force() {
             (Builder::Lbvh, "emc64-var"),
             (Builder::LbvhApetrei, "morton30"),
         ] {
-            let opts = BuildOptions {
-                builder: Some(builder),
-                layout: Some(layout.parse().unwrap()),
-                ..BuildOptions::default()
-            };
+            let opts = BuildOptions::default()
+                .with_builder(builder)
+                .with_layout(layout.parse::<emc_cpu::LayoutChoice>().unwrap());
             match Accel::from_triangles(tris.clone(), &opts) {
                 Ok(a) => check_against(
                     &format!("builtin:{name} {builder}/{layout}"),

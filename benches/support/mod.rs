@@ -15,10 +15,7 @@ pub fn bench_n() -> usize {
 
 /// The boxes of `builtin:uniform` with `n` triangles (deterministic, default seed).
 pub fn uniform_boxes(n: usize) -> Vec<Aabb> {
-    let opts = SceneOptions {
-        prims: Some(n),
-        ..SceneOptions::default()
-    };
+    let opts = SceneOptions::default().with_prims(n);
     load_with("builtin:uniform", &opts)
         .expect("the built-in uniform scene generates")
         .aabbs()

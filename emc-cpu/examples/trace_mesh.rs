@@ -8,10 +8,7 @@ use emc_cpu::trace::{Accel, BuildOptions, Preset, Ray};
 use glam::Vec3;
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {
-    let opts = SceneOptions {
-        prims: Some(50_000),
-        ..SceneOptions::default()
-    };
+    let opts = SceneOptions::default().with_prims(50_000);
     let scene = builtin::generate("sphere", &opts)?;
     let (lo, hi) = scene.vertices.iter().fold(
         (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),

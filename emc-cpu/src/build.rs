@@ -127,28 +127,74 @@ pub enum BuildError {
     Auto(#[from] AutoError),
 }
 
-/// Options of a build.
+/// Options of the measured BVH2 pipeline ([`build_aabbs`], [`build_scene`]; what `emc build`
+/// and `emc paper` time phase by phase). It runs in a pool of its own with `threads` threads,
+/// so that it can read each thread's CPU clock, and returns the binary tree with its report.
+/// A library user who wants a tree to trace builds an [`Accel`](crate::Accel) with
+/// [`BuildOptions`](crate::BuildOptions) instead (the caller's pool, the wide tree).
+///
+/// ```
+/// use emc_cpu::build::{Builder, PipelineOptions};
+/// use emc_cpu::bvh::refit::CollapseParams;
+///
+/// let opts = PipelineOptions::default()
+///     .with_builder(Builder::Atrbvh)
+///     .with_threads(2)
+///     .with_collapse(CollapseParams::NONE);
+/// assert_eq!(opts.collapse.max_leaf, 1);
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct BuildOptions {
+#[non_exhaustive]
+pub struct PipelineOptions {
     /// Code layout, fixed or `auto` (ignored by `binned-sah`).
     pub layout: LayoutChoice,
     /// Hierarchy builder.
     pub builder: Builder,
-    /// Threads of the local pool (≥ 1).
+    /// Threads of the pipeline's own pool (≥ 1).
     pub threads: usize,
     /// Collapse constants and maximum leaf size (`max_leaf = 1` keeps one primitive per leaf).
     pub collapse: CollapseParams,
 }
 
-impl Default for BuildOptions {
+impl Default for PipelineOptions {
     /// `emc64-var`, `lbvh`, 1 thread, `Ct = 1.2`, `Ci = 1`, leaves of at most 8.
     fn default() -> Self {
-        BuildOptions {
+        PipelineOptions {
             layout: LayoutChoice::Fixed(LayoutSpec::Emc64Var),
             builder: Builder::Lbvh,
             threads: 1,
             collapse: CollapseParams::default(),
         }
+    }
+}
+
+impl PipelineOptions {
+    /// With this code layout (a [`LayoutSpec`] or a [`LayoutChoice`]).
+    #[inline]
+    pub fn with_layout(mut self, layout: impl Into<LayoutChoice>) -> Self {
+        self.layout = layout.into();
+        self
+    }
+
+    /// With this hierarchy builder.
+    #[inline]
+    pub fn with_builder(mut self, builder: Builder) -> Self {
+        self.builder = builder;
+        self
+    }
+
+    /// With this many threads in the pipeline's pool.
+    #[inline]
+    pub fn with_threads(mut self, threads: usize) -> Self {
+        self.threads = threads;
+        self
+    }
+
+    /// With these collapse constants and leaf limit.
+    #[inline]
+    pub fn with_collapse(mut self, collapse: CollapseParams) -> Self {
+        self.collapse = collapse;
+        self
     }
 }
 
@@ -501,14 +547,14 @@ impl BuildArena {
 }
 
 /// Build over a triangle mesh: every phase from triangle boxes on, in fresh buffers.
-pub fn build_scene(scene: &Scene, opts: &BuildOptions) -> Result<BuildOutput, BuildError> {
+pub fn build_scene(scene: &Scene, opts: &PipelineOptions) -> Result<BuildOutput, BuildError> {
     build_scene_in(scene, opts, &mut BuildArena::new())
 }
 
 /// [`build_scene`] in the buffers of `arena`.
 pub fn build_scene_in(
     scene: &Scene,
-    opts: &BuildOptions,
+    opts: &PipelineOptions,
     arena: &mut BuildArena,
 ) -> Result<BuildOutput, BuildError> {
     let mut timed = Timed::new(opts.threads)?;
@@ -526,7 +572,7 @@ pub fn build_scene_in(
 }
 
 /// Build over primitive boxes (the AABB phase is then 0), in fresh buffers.
-pub fn build_aabbs(aabbs: Vec<Aabb>, opts: &BuildOptions) -> Result<BuildOutput, BuildError> {
+pub fn build_aabbs(aabbs: Vec<Aabb>, opts: &PipelineOptions) -> Result<BuildOutput, BuildError> {
     build_aabbs_in(aabbs, opts, &mut BuildArena::new())
 }
 
@@ -534,7 +580,7 @@ pub fn build_aabbs(aabbs: Vec<Aabb>, opts: &BuildOptions) -> Result<BuildOutput,
 /// own), wall times only, and no SAH figures in the report (`sah_*` and `depth` are 0).
 pub fn build_aabbs_inline(
     aabbs: Vec<Aabb>,
-    opts: &BuildOptions,
+    opts: &PipelineOptions,
 ) -> Result<BuildOutput, BuildError> {
     if opts.threads == 0 {
         return Err(BuildError::ZeroThreads);
@@ -545,7 +591,7 @@ pub fn build_aabbs_inline(
 /// [`build_aabbs`] in the buffers of `arena`.
 pub fn build_aabbs_in(
     aabbs: Vec<Aabb>,
-    opts: &BuildOptions,
+    opts: &PipelineOptions,
     arena: &mut BuildArena,
 ) -> Result<BuildOutput, BuildError> {
     build_timed(Timed::new(opts.threads)?, aabbs, opts, arena)
@@ -554,7 +600,7 @@ pub fn build_aabbs_in(
 fn build_timed(
     mut timed: Timed,
     aabbs: Vec<Aabb>,
-    opts: &BuildOptions,
+    opts: &PipelineOptions,
     arena: &mut BuildArena,
 ) -> Result<BuildOutput, BuildError> {
     let n = aabbs.len();
@@ -660,7 +706,7 @@ fn lbvh_phases<K: RadixKey>(
     mut keys: Vec<K>,
     kbuf: &mut Vec<K>,
     aabbs: &[Aabb],
-    opts: &BuildOptions,
+    opts: &PipelineOptions,
     arena: &mut BuildArena,
 ) -> Result<LbvhResult<K>, BuildError> {
     let k = opts.collapse;
@@ -730,7 +776,7 @@ fn finish(
     timed: Timed,
     bvh: Bvh,
     aabbs: Vec<Aabb>,
-    opts: &BuildOptions,
+    opts: &PipelineOptions,
     layout: Option<String>,
     sort: SortReport,
     headline: f64,

@@ -8,7 +8,7 @@ use std::path::Path;
 use emc_core::{Aabb, Backend, Channel, Encoder, Frame, Layout, LayoutSpec, SizeTransform};
 use glam::Vec3;
 
-use crate::build::{build_scene, BuildOptions, Builder};
+use crate::build::{build_scene, Builder, PipelineOptions};
 use crate::bvh::refit::CollapseParams;
 use crate::scene::obj::parse_obj_bytes;
 use crate::scene::Scene;
@@ -250,7 +250,7 @@ pub fn check_build_trace(data: &[u8]) {
         })
         .collect();
     for builder in Builder::ALL {
-        let opts = BuildOptions {
+        let opts = PipelineOptions {
             layout: layout.into(),
             builder,
             threads: 1,

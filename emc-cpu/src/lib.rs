@@ -27,6 +27,8 @@ pub mod scene;
 pub mod sort;
 pub mod trace;
 
+pub use auto::LayoutChoice;
 pub use build::Builder;
+pub use emc_core::LayoutSpec;
 pub use scene::Scene;
 pub use trace::{Accel, BuildOptions, Hit, Preset, Ray, TraceError};

@@ -9,10 +9,10 @@
 
 pub mod candidates;
 pub mod estimate;
-#[allow(unsafe_code)]
-pub mod scan;
 #[cfg(feature = "cli")]
 pub mod report;
+#[allow(unsafe_code)]
+pub mod scan;
 
 use std::fmt;
 use std::str::FromStr;

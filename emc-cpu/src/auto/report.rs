@@ -10,7 +10,7 @@ use std::time::Instant;
 use emc_core::{Frame, Normalization};
 
 use super::{choose, AutoChoice, LayoutChoice, AUTO};
-use crate::build::{build_aabbs, scene_bounds, BuildOptions, Builder};
+use crate::build::{build_aabbs, scene_bounds, Builder, PipelineOptions};
 use crate::bvh::refit::CollapseParams;
 use crate::cputime::median;
 use crate::scene::Scene;
@@ -190,7 +190,7 @@ pub fn measure(scene: &Scene, opts: &ReportOptions) -> anyhow::Result<SceneRepor
     for s in &choice.scored {
         let out = build_aabbs(
             boxes.clone(),
-            &BuildOptions {
+            &PipelineOptions {
                 layout: LayoutChoice::Fixed(s.candidate.spec),
                 builder: Builder::Lbvh,
                 threads,

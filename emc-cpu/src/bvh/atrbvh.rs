@@ -45,6 +45,7 @@ const NO_PARENT: u32 = u32::MAX;
 /// Settings of [`restructure`]. [`AtrConfig::default`] is the ATRBVH shipped configuration:
 /// treelets of 9 leaves, 2 iterations, `γ` starting at the treelet size, `ct = 1.2`, `ci = 1`.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct AtrConfig {
     /// Leaves per treelet, in [`MIN_TREELET_SIZE`]`..=`[`MAX_TREELET_SIZE`].
     pub treelet_size: usize,
@@ -72,6 +73,41 @@ impl Default for AtrConfig {
 }
 
 impl AtrConfig {
+    /// With this many leaves per treelet.
+    #[inline]
+    pub fn with_treelet_size(mut self, treelet_size: usize) -> AtrConfig {
+        self.treelet_size = treelet_size;
+        self
+    }
+
+    /// With this many bottom-up passes.
+    #[inline]
+    pub fn with_iterations(mut self, iterations: u32) -> AtrConfig {
+        self.iterations = iterations;
+        self
+    }
+
+    /// With this minimum subtree size of a first-pass treelet root (`None`: the treelet size).
+    #[inline]
+    pub fn with_gamma(mut self, gamma: Option<u32>) -> AtrConfig {
+        self.gamma = gamma;
+        self
+    }
+
+    /// With this cost of an inner node.
+    #[inline]
+    pub fn with_ct(mut self, ct: f64) -> AtrConfig {
+        self.ct = ct;
+        self
+    }
+
+    /// With this cost of a primitive test.
+    #[inline]
+    pub fn with_ci(mut self, ci: f64) -> AtrConfig {
+        self.ci = ci;
+        self
+    }
+
     /// Check every field; [`restructure`] calls this first.
     pub fn check(&self) -> Result<(), AtrError> {
         if !(MIN_TREELET_SIZE..=MAX_TREELET_SIZE).contains(&self.treelet_size) {

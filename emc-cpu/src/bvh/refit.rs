@@ -18,6 +18,7 @@ pub(crate) const LEAVES_PER_TASK: usize = 4096;
 
 /// Parameters of the SAH leaf collapse.
 #[derive(Clone, Copy, Debug, PartialEq)]
+#[non_exhaustive]
 pub struct CollapseParams {
     /// Cost of an inner node (traversal), `Ct`.
     pub ct: f64,
@@ -39,6 +40,19 @@ impl Default for CollapseParams {
 }
 
 impl CollapseParams {
+    /// Costs `ct` (inner node) and `ci` (primitive), leaves of at most `max_leaf`.
+    #[inline]
+    pub const fn new(ct: f64, ci: f64, max_leaf: u32) -> CollapseParams {
+        CollapseParams { ct, ci, max_leaf }
+    }
+
+    /// With leaves of at most `max_leaf` primitives.
+    #[inline]
+    pub const fn with_max_leaf(mut self, max_leaf: u32) -> CollapseParams {
+        self.max_leaf = max_leaf;
+        self
+    }
+
     /// No collapse: one primitive per leaf.
     pub const NONE: CollapseParams = CollapseParams {
         ct: 1.0,

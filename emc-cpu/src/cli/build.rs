@@ -7,7 +7,8 @@ use anyhow::{bail, Context};
 use crate::auto::LayoutChoice;
 
 use crate::build::{
-    build_scene_in, BuildArena, BuildOptions, BuildOutput, BuildReport, Builder, Phase, PhaseTime,
+    build_scene_in, BuildArena, BuildOutput, BuildReport, Builder, Phase, PhaseTime,
+    PipelineOptions,
 };
 use crate::bvh::refit::CollapseParams;
 use crate::scene::{load_with, SceneOptions};
@@ -63,7 +64,7 @@ struct Series {
 /// Run `repeat` builds with `opts` (fresh buffers each when `cold`, else the previous build's).
 fn series(
     scene: &crate::scene::Scene,
-    opts: &BuildOptions,
+    opts: &PipelineOptions,
     repeat: usize,
     cold: bool,
 ) -> anyhow::Result<Series> {
@@ -132,7 +133,7 @@ pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
         .parse()
         .with_context(|| format!("--layout {}", args.layout))?;
     let builder: Builder = args.builder.parse()?;
-    let opts = BuildOptions {
+    let opts = PipelineOptions {
         layout,
         builder,
         threads: args.threads,
@@ -158,7 +159,7 @@ pub fn run(args: &BuildArgs) -> anyhow::Result<()> {
     let base = match args.vs_threads {
         Some(t) => Some(series(
             &scene,
-            &BuildOptions { threads: t, ..opts },
+            &PipelineOptions { threads: t, ..opts },
             args.repeat,
             args.cold,
         )?),

@@ -8,7 +8,7 @@ use std::time::Instant;
 use emc_core::{Aabb, Frame, LayoutSpec, Normalization};
 use glam::Vec3;
 
-use crate::build::{build_scene, encode_codes, scene_bounds, sort_codes, BuildOptions, Builder};
+use crate::build::{build_scene, encode_codes, scene_bounds, sort_codes, Builder, PipelineOptions};
 use crate::bvh::atrbvh::{restructure, AtrConfig};
 use crate::bvh::collapse::collapse_bvh;
 use crate::bvh::refit::CollapseParams;
@@ -157,7 +157,7 @@ pub fn build(
     };
     let out = build_scene(
         scene,
-        &BuildOptions {
+        &PipelineOptions {
             layout: if variant.auto {
                 crate::auto::AUTO
             } else {

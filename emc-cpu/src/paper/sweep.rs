@@ -10,7 +10,7 @@ use emc_core::{Frame, LayoutSpec, Normalization};
 
 use super::measure::{trace, MeasureError, Workload};
 use crate::auto::{choose, AutoError};
-use crate::build::{build_scene, scene_bounds, BuildOptions, Builder, Phase};
+use crate::build::{build_scene, scene_bounds, Builder, Phase, PipelineOptions};
 use crate::bvh::refit::CollapseParams;
 use crate::scene::Scene;
 
@@ -93,7 +93,7 @@ pub fn measure_sweep(
     for (bits, spec, label) in layouts {
         let out = build_scene(
             scene,
-            &BuildOptions {
+            &PipelineOptions {
                 layout: spec.into(),
                 builder: Builder::Lbvh,
                 threads,

@@ -197,7 +197,13 @@ impl Scene {
 }
 
 /// Options of [`load_with`]: they only affect `builtin:` scenes.
+///
+/// ```
+/// let opts = emc_cpu::scene::SceneOptions::default().with_prims(5000).with_seed(7);
+/// assert_eq!((opts.prims, opts.seed), (Some(5000), 7));
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct SceneOptions {
     /// Approximate triangle count of a built-in scene (each generator documents how it rounds);
     /// `None` takes the generator's default size.
@@ -212,6 +218,22 @@ impl Default for SceneOptions {
             prims: None,
             seed: builtin::DEFAULT_SEED,
         }
+    }
+}
+
+impl SceneOptions {
+    /// With about this many triangles in a built-in scene (`None`: the generator's default).
+    #[inline]
+    pub fn with_prims(mut self, prims: impl Into<Option<usize>>) -> SceneOptions {
+        self.prims = prims.into();
+        self
+    }
+
+    /// With this seed of the built-in generators.
+    #[inline]
+    pub fn with_seed(mut self, seed: u64) -> SceneOptions {
+        self.seed = seed;
+        self
     }
 }
 

@@ -44,6 +44,7 @@ use crate::bvh::collapse::collapse_bvh;
 use crate::bvh::refit::CollapseParams;
 use crate::bvh::Bvh;
 use crate::trace::intersect::{Hit, Ray};
+use crate::trace::refit::RefitPlan;
 use crate::trace::traverse::{closest, occluded, NodeTest, TraceStats};
 use crate::trace::wide::{WideBvh, WIDTH, WIDTH8};
 use crate::trace::wide_lbvh::{build_fast, FastScratch, FastTimes};
@@ -62,8 +63,21 @@ pub enum Preset {
     Quality,
 }
 
-/// Options of [`Accel::build`]: a preset, and overrides of its choices.
+/// Options of [`Accel::build`]: a preset, and overrides of its choices, set with the
+/// `with_` methods (the struct is `#[non_exhaustive]`, so options can be added later without
+/// breaking callers).
+///
+/// ```
+/// use emc_cpu::{BuildOptions, Builder, Preset};
+/// use emc_core::LayoutSpec;
+///
+/// let opts = BuildOptions::preset(Preset::Balanced)
+///     .with_layout(LayoutSpec::Emc64Sort)
+///     .with_width(4);
+/// assert_eq!(opts.resolve().0, Builder::Lbvh);
+/// ```
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
 pub struct BuildOptions {
     /// The preset that fills in everything left `None`.
     pub preset: Preset,
@@ -90,6 +104,41 @@ impl BuildOptions {
             preset,
             ..BuildOptions::default()
         }
+    }
+
+    /// With this code layout (a [`LayoutSpec`] or a [`LayoutChoice`], e.g. [`crate::auto::AUTO`]).
+    #[inline]
+    pub fn with_layout(mut self, layout: impl Into<LayoutChoice>) -> BuildOptions {
+        self.layout = Some(layout.into());
+        self
+    }
+
+    /// With this hierarchy builder.
+    #[inline]
+    pub fn with_builder(mut self, builder: Builder) -> BuildOptions {
+        self.builder = Some(builder);
+        self
+    }
+
+    /// With or without treelet restructuring.
+    #[inline]
+    pub fn with_restructure(mut self, restructure: bool) -> BuildOptions {
+        self.restructure = Some(restructure);
+        self
+    }
+
+    /// With this largest leaf of the SAH leaf collapse ([`BuildOptions::leaf_size`]).
+    #[inline]
+    pub fn with_leaf_size(mut self, leaf_size: u32) -> BuildOptions {
+        self.leaf_size = Some(leaf_size);
+        self
+    }
+
+    /// With this many children per node of the traced tree (4 or 8).
+    #[inline]
+    pub fn with_width(mut self, width: usize) -> BuildOptions {
+        self.width = Some(width);
+        self
     }
 
     /// The builder, layout and restructuring the preset and overrides resolve to.
@@ -131,6 +180,8 @@ pub struct Accel {
     scratch4: FastScratch<WIDTH>,
     scratch8: FastScratch<WIDTH8>,
     phases: FastTimes,
+    /// The level order of [`Accel::refit`], made at the first refit after a build.
+    refit: Option<RefitPlan>,
 }
 
 impl Accel {
@@ -155,6 +206,7 @@ impl Accel {
             scratch4: FastScratch::default(),
             scratch8: FastScratch::default(),
             phases: FastTimes::default(),
+            refit: None,
         };
         a.build_over(vertices, indices)?;
         a.vertices = vertices.to_vec();
@@ -190,8 +242,61 @@ impl Accel {
         let indices = std::mem::take(&mut self.indices);
         let r = self.build_over(vertices, &indices);
         self.indices = indices;
+        self.refit = None;
         r?;
         self.vertices.copy_from_slice(vertices);
+        self.debug_validate();
+        Ok(())
+    }
+
+    /// Refit the tree to new positions of the same mesh: `vertices` replaces the vertices (same
+    /// count, same indices), the tree keeps its topology and only its boxes move (see
+    /// [`WideBvh::refit`]), level by level in the caller's rayon pool. Much cheaper than
+    /// [`Accel::rebuild`], but the tree is the old one: for a deformation that moves
+    /// triangles far from their neighbours it traces slower than a rebuild (`emc compare
+    /// --frames` shows when). Fails, leaving the structure as it was, on a vertex count that
+    /// differs from the build's or on a non-finite vertex.
+    pub fn refit(&mut self, vertices: &[Vec3]) -> Result<(), TraceError> {
+        if vertices.len() != self.vertices.len() {
+            return Err(TraceError::VertexCount {
+                given: vertices.len(),
+                expected: self.vertices.len(),
+            });
+        }
+        // The largest coordinate of the referenced vertices (as a build measures it), and the
+        // first triangle with a non-finite corner.
+        let (max_abs, bad) = self
+            .indices
+            .par_iter()
+            .enumerate()
+            .with_min_len(4096)
+            .fold(
+                || (0.0f32, usize::MAX),
+                |(m, bad), (i, t)| {
+                    let mut m = m;
+                    let mut bad = bad;
+                    for &k in t {
+                        let v = vertices[k as usize];
+                        if !v.is_finite() {
+                            bad = bad.min(i);
+                        }
+                        m = m.max(v.abs().max_element());
+                    }
+                    (m, bad)
+                },
+            )
+            .reduce(|| (0.0, usize::MAX), |a, b| (a.0.max(b.0), a.1.min(b.1)));
+        if bad != usize::MAX {
+            return Err(TraceError::NonFinite(bad));
+        }
+        self.vertices.copy_from_slice(vertices);
+        let plan = self.refit.get_or_insert_with(|| RefitPlan::new(&self.bvh));
+        let (verts, idx) = (&self.vertices, &self.indices);
+        self.bvh.refit(
+            plan,
+            |id| idx[id as usize].map(|i| verts[i as usize]),
+            max_abs,
+        );
         self.debug_validate();
         Ok(())
     }
@@ -279,6 +384,7 @@ impl Accel {
             scratch4: FastScratch::default(),
             scratch8: FastScratch::default(),
             phases: FastTimes::default(),
+            refit: None,
         })
     }
 
@@ -381,7 +487,7 @@ pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceE
         ..CollapseParams::default()
     };
     let threads = rayon::current_num_threads();
-    let bopts = crate::build::BuildOptions {
+    let bopts = crate::build::PipelineOptions {
         layout,
         builder,
         threads,

@@ -7,6 +7,7 @@ pub mod cover;
 #[cfg(feature = "image")]
 pub mod image;
 pub mod intersect;
+pub mod refit;
 pub mod traverse;
 pub mod wide;
 pub mod wide_lbvh;
