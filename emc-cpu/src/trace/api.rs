@@ -156,6 +156,60 @@ impl BuildOptions {
     }
 }
 
+/// Whether every one of `n` vertices is named by some triangle.
+fn every_vertex_referenced(indices: &[[u32; 3]], n: usize) -> bool {
+    let mut seen = vec![false; n];
+    for t in indices {
+        for &i in t {
+            seen[i as usize] = true;
+        }
+    }
+    seen.iter().all(|&s| s)
+}
+
+/// The largest absolute coordinate of `v`, or `None` when one is not finite.
+fn max_abs_of_vertices(v: &[Vec3]) -> Option<f32> {
+    let (m, ok) = v
+        .par_chunks(16384)
+        .map(|c| {
+            let (mut m, mut ok) = (0.0f32, true);
+            for p in c {
+                for x in [p.x, p.y, p.z] {
+                    let a = x.abs();
+                    ok &= a.is_finite();
+                    m = if a > m { a } else { m };
+                }
+            }
+            (m, ok)
+        })
+        .reduce(|| (0.0, true), |a, b| (a.0.max(b.0), a.1 && b.1));
+    ok.then_some(m)
+}
+
+/// The largest absolute coordinate of the vertices the triangles name, and the first triangle
+/// with a non-finite corner.
+fn max_abs_of_triangles(indices: &[[u32; 3]], vertices: &[Vec3]) -> (f32, Option<usize>) {
+    let (m, bad) = indices
+        .par_iter()
+        .enumerate()
+        .with_min_len(4096)
+        .fold(
+            || (0.0f32, usize::MAX),
+            |(mut m, mut bad), (i, t)| {
+                for &k in t {
+                    let v = vertices[k as usize];
+                    if !v.is_finite() {
+                        bad = bad.min(i);
+                    }
+                    m = m.max(v.abs().max_element());
+                }
+                (m, bad)
+            },
+        )
+        .reduce(|| (0.0, usize::MAX), |a, b| (a.0.max(b.0), a.1.min(b.1)));
+    (m, (bad != usize::MAX).then_some(bad))
+}
+
 /// Default largest leaf of [`BuildOptions::leaf_size`].
 pub const DEFAULT_LEAF_SIZE: u32 = 4;
 
@@ -180,8 +234,9 @@ pub struct Accel {
     scratch4: FastScratch<WIDTH>,
     scratch8: FastScratch<WIDTH8>,
     phases: FastTimes,
-    /// The level order of [`Accel::refit`], made at the first refit after a build.
-    refit: Option<RefitPlan>,
+    /// The level order of [`Accel::refit`] and whether every vertex is referenced, made at
+    /// the first refit after a build.
+    refit: Option<(RefitPlan, bool)>,
 }
 
 impl Accel {
@@ -263,34 +318,29 @@ impl Accel {
                 expected: self.vertices.len(),
             });
         }
-        // The largest coordinate of the referenced vertices (as a build measures it), and the
-        // first triangle with a non-finite corner.
-        let (max_abs, bad) = self
-            .indices
-            .par_iter()
-            .enumerate()
-            .with_min_len(4096)
-            .fold(
-                || (0.0f32, usize::MAX),
-                |(m, bad), (i, t)| {
-                    let mut m = m;
-                    let mut bad = bad;
-                    for &k in t {
-                        let v = vertices[k as usize];
-                        if !v.is_finite() {
-                            bad = bad.min(i);
-                        }
-                        m = m.max(v.abs().max_element());
-                    }
-                    (m, bad)
-                },
-            )
-            .reduce(|| (0.0, usize::MAX), |a, b| (a.0.max(b.0), a.1.min(b.1)));
-        if bad != usize::MAX {
-            return Err(TraceError::NonFinite(bad));
-        }
+        let (bvh, indices, nv) = (&self.bvh, &self.indices, vertices.len());
+        let (plan, all_referenced) = &*self
+            .refit
+            .get_or_insert_with(|| (RefitPlan::new(bvh), every_vertex_referenced(indices, nv)));
+        // The largest coordinate of the referenced vertices (as a build measures it): over
+        // the vertex list when every vertex is referenced, else through the indices (which
+        // also names the first triangle with a non-finite corner).
+        let scanned = if *all_referenced {
+            max_abs_of_vertices(vertices)
+        } else {
+            None
+        };
+        let max_abs = match scanned {
+            Some(m) => m,
+            None => {
+                let (m, bad) = max_abs_of_triangles(indices, vertices);
+                if let Some(i) = bad {
+                    return Err(TraceError::NonFinite(i));
+                }
+                m
+            }
+        };
         self.vertices.copy_from_slice(vertices);
-        let plan = self.refit.get_or_insert_with(|| RefitPlan::new(&self.bvh));
         let (verts, idx) = (&self.vertices, &self.indices);
         self.bvh.refit(
             plan,

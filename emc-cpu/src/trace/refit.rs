@@ -5,36 +5,111 @@
 #![forbid(unsafe_code)]
 
 use emc_core::Aabb;
-use glam::Vec3;
+use glam::{Vec3, Vec4};
 use rayon::prelude::*;
 
 use crate::trace::wide::{TriPacket, WideBvh, WideNodeN, EMPTY, LEAF, WIDTH, WIDTH8};
 
-/// Nodes per rayon task of a level.
-const NODES_PER_TASK: usize = 256;
 /// Packets per rayon task.
 const PACKETS_PER_TASK: usize = 1024;
 
 /// The order of a refit, from the topology alone: each tree's nodes grouped by depth (root
 /// level first). Computed once per build and kept while only the vertices move.
-#[derive(Clone, Debug, Default, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub struct RefitPlan {
-    levels4: Vec<Vec<u32>>,
-    levels8: Vec<Vec<u32>>,
+    order4: Order,
+    order8: Order,
+    /// Per packet: whether it ends its leaf (the packets' own flag, kept compact so that the
+    /// node pass does not touch the packets again).
+    last: Vec<bool>,
 }
 
 impl RefitPlan {
     /// The levels of both trees of `bvh` (breadth first from node 0).
     pub fn new(bvh: &WideBvh) -> RefitPlan {
         RefitPlan {
-            levels4: levels(&bvh.nodes),
-            levels8: levels(&bvh.nodes8),
+            order4: Order::of(&bvh.nodes),
+            order8: Order::of(&bvh.nodes8),
+            last: bvh.packets.iter().map(|p| p.last != 0).collect(),
         }
     }
+}
 
-    /// Levels of the 4-wide and the 8-wide tree.
-    pub fn depths(&self) -> (usize, usize) {
-        (self.levels4.len(), self.levels8.len())
+/// How one tree is walked bottom-up: disjoint subtrees that each occupy a contiguous index
+/// range with every child after its parent (pre-order) or every child before it (post-order)
+/// (`tasks`: start, end, post-order; refitted in parallel, each by one pass over its range
+/// from the leaves' end, a stream through memory rather than a walk), then the nodes above
+/// them (`top`, in breadth-first order, refitted in reverse). A tree without such ranges is
+/// all `top`.
+#[derive(Clone, Debug, PartialEq, Eq)]
+struct Order {
+    tasks: Vec<(u32, u32, bool)>,
+    top: Vec<u32>,
+}
+
+/// Subtrees above this share of the nodes are split into their children's.
+const TASK_SHARE: usize = 16;
+
+impl Order {
+    fn of<const W: usize>(nodes: &[WideNodeN<W>]) -> Order {
+        let n = nodes.len();
+        if n == 0 {
+            return Order {
+                tasks: Vec::new(),
+                top: Vec::new(),
+            };
+        }
+        let inner = |i: usize| {
+            nodes[i]
+                .child
+                .into_iter()
+                .filter(|&c| c != EMPTY && c & LEAF == 0)
+                .map(|c| c as usize)
+        };
+        // Per node: subtree size and lowest and highest index, bottom-up over the levels.
+        let lv = levels(nodes);
+        let mut count = vec![1usize; n];
+        let mut lo: Vec<usize> = (0..n).collect();
+        let mut hi: Vec<usize> = (0..n).collect();
+        // pre[i]: every node of i's subtree precedes its children; post[i]: follows them.
+        let mut pre = vec![true; n];
+        let mut post = vec![true; n];
+        for level in lv.iter().rev() {
+            for &i in level {
+                let i = i as usize;
+                for c in inner(i) {
+                    pre[i] &= c > i && pre[c];
+                    post[i] &= c < i && post[c];
+                    count[i] += count[c];
+                    lo[i] = lo[i].min(lo[c]);
+                    hi[i] = hi[i].max(hi[c]);
+                }
+            }
+        }
+        let shape = |i: usize| {
+            let dense = hi[i] + 1 - lo[i] == count[i];
+            if dense && pre[i] && lo[i] == i {
+                Some(false)
+            } else if dense && post[i] && hi[i] == i {
+                Some(true)
+            } else {
+                None
+            }
+        };
+        let mut tasks = Vec::new();
+        let mut top = Vec::new();
+        let mut queue = std::collections::VecDeque::from([0usize]);
+        while let Some(i) = queue.pop_front() {
+            let small = count[i] * TASK_SHARE <= n || count[i] == 1;
+            if let (Some(post_order), true) = (shape(i), small) {
+                tasks.push((lo[i] as u32, (hi[i] + 1) as u32, post_order));
+            } else {
+                top.push(i as u32);
+                queue.extend(inner(i));
+            }
+        }
+        tasks.sort_unstable();
+        Order { tasks, top }
     }
 }
 
@@ -56,62 +131,108 @@ fn levels<const W: usize>(nodes: &[WideNodeN<W>]) -> Vec<Vec<u32>> {
     out
 }
 
-/// Union of the boxes of the triangles of the leaf whose first packet is `first`.
+/// Union of the boxes of the triangles of a packet. Unused lanes repeat the last real
+/// triangle (see [`TriPacket`]), so all four lanes are taken, one SIMD min and max per row.
 #[inline]
-fn leaf_box(packets: &[TriPacket], first: usize) -> Aabb {
-    let (mut lo, mut hi) = (Vec3::INFINITY, Vec3::NEG_INFINITY);
-    for p in &packets[first..] {
-        for lane in 0..p.count as usize {
-            for v in p.lane(lane) {
-                let v = Vec3::from(v);
-                lo = lo.min(v);
-                hi = hi.max(v);
-            }
-        }
-        if p.last != 0 {
+fn packet_box(p: &TriPacket) -> Aabb {
+    let row = |k: usize| Vec4::from_array(p.v[k]);
+    let mut lo = [0.0f32; 3];
+    let mut hi = [0.0f32; 3];
+    for a in 0..3 {
+        let (r0, r1, r2) = (row(a), row(3 + a), row(6 + a));
+        lo[a] = r0.min(r1).min(r2).min_element();
+        hi[a] = r0.max(r1).max(r2).max_element();
+    }
+    Aabb::new(lo.into(), hi.into())
+}
+
+/// Union of the packet boxes of the leaf whose first packet is `first`.
+#[inline]
+fn leaf_box(last: &[bool], boxes: &[Aabb], first: usize) -> Aabb {
+    let mut b = Aabb::EMPTY;
+    for (&l, pb) in last[first..].iter().zip(&boxes[first..]) {
+        b = b.union(pb);
+        if l {
             break;
         }
     }
-    Aabb::new(lo, hi)
+    b
 }
 
-/// Refit one tree: `boxes[n]` receives the unpadded box of node `n`.
+/// The lanes of `node` from its children's unpadded boxes (`inner(code)`) and its leaves'
+/// packet boxes; returns the node's own unpadded box.
+#[inline(always)]
+fn refit_node<const W: usize>(
+    node: &mut WideNodeN<W>,
+    (last, packet_boxes): (&[bool], &[Aabb]),
+    pad: f32,
+    inner: impl Fn(u32) -> Aabb,
+) -> Aabb {
+    let mut all = Aabb::EMPTY;
+    for lane in 0..W {
+        let code = node.child[lane];
+        if code == EMPTY {
+            continue;
+        }
+        let b = if code & LEAF != 0 {
+            leaf_box(last, packet_boxes, (code & !LEAF) as usize)
+        } else {
+            inner(code)
+        };
+        node.set(lane, &b, code, pad);
+        all = all.union(&b);
+    }
+    all
+}
+
+/// Refit nodes `base..base + nodes.len()`, one whole subtree in pre-order (children after
+/// parents: walked from the end) or post-order (walked from the start); `boxes` receives
+/// their unpadded boxes.
+fn refit_range<const W: usize>(
+    nodes: &mut [WideNodeN<W>],
+    boxes: &mut [Aabb],
+    base: usize,
+    post_order: bool,
+    leaves: (&[bool], &[Aabb]),
+    pad: f32,
+) {
+    let n = nodes.len();
+    for k in 0..n {
+        let i = if post_order { k } else { n - 1 - k };
+        let b = refit_node(&mut nodes[i], leaves, pad, |c| boxes[c as usize - base]);
+        boxes[i] = b;
+    }
+}
+
+/// Refit one tree in `order`.
 fn refit_tree<const W: usize>(
     nodes: &mut [WideNodeN<W>],
-    levels: &[Vec<u32>],
-    packets: &[TriPacket],
+    order: &Order,
+    leaves: (&[bool], &[Aabb]),
     pad: f32,
     boxes: &mut Vec<Aabb>,
 ) {
     boxes.clear();
     boxes.resize(nodes.len(), Aabb::EMPTY);
-    for level in levels.iter().rev() {
-        let done: Vec<(WideNodeN<W>, Aabb)> = level
-            .par_iter()
-            .with_min_len(NODES_PER_TASK)
-            .map(|&n| {
-                let mut node = nodes[n as usize];
-                let mut all = Aabb::EMPTY;
-                for lane in 0..W {
-                    let code = node.child[lane];
-                    if code == EMPTY {
-                        continue;
-                    }
-                    let b = if code & LEAF != 0 {
-                        leaf_box(packets, (code & !LEAF) as usize)
-                    } else {
-                        boxes[code as usize]
-                    };
-                    node.set(lane, &b, code, pad);
-                    all = all.union(&b);
-                }
-                (node, all)
-            })
-            .collect();
-        for (&n, (node, b)) in level.iter().zip(done) {
-            nodes[n as usize] = node;
-            boxes[n as usize] = b;
-        }
+    // The subtree ranges, as disjoint slices of the nodes and their boxes.
+    let mut parts = Vec::with_capacity(order.tasks.len());
+    let (mut rest, mut brest, mut at) = (&mut nodes[..], &mut boxes[..], 0usize);
+    for &(a, b, post_order) in &order.tasks {
+        let (_, r) = rest.split_at_mut(a as usize - at);
+        let (_, br) = brest.split_at_mut(a as usize - at);
+        let (part, r) = r.split_at_mut((b - a) as usize);
+        let (bpart, br) = br.split_at_mut((b - a) as usize);
+        parts.push((a as usize, post_order, part, bpart));
+        (rest, brest, at) = (r, br, b as usize);
+    }
+    parts
+        .into_par_iter()
+        .for_each(|(base, post_order, n, bx)| refit_range(n, bx, base, post_order, leaves, pad));
+    for &i in order.top.iter().rev() {
+        let mut node = nodes[i as usize];
+        let b = refit_node(&mut node, leaves, pad, |c| boxes[c as usize]);
+        nodes[i as usize] = node;
+        boxes[i as usize] = b;
     }
 }
 
@@ -122,10 +243,12 @@ impl WideBvh {
     /// [`RefitPlan::new`] of this tree. Refitting to unmoved triangles gives the same nodes
     /// bit for bit.
     pub fn refit(&mut self, plan: &RefitPlan, tri: impl Fn(u32) -> [Vec3; 3] + Sync, max_abs: f32) {
+        let mut packet_boxes = vec![Aabb::EMPTY; self.packets.len()];
         self.packets
             .par_iter_mut()
+            .zip(packet_boxes.par_iter_mut())
             .with_min_len(PACKETS_PER_TASK)
-            .for_each(|p| {
+            .for_each(|(p, b)| {
                 for lane in 0..WIDTH {
                     let t = tri(p.id[lane]);
                     for (j, v) in t.iter().enumerate() {
@@ -134,21 +257,22 @@ impl WideBvh {
                         }
                     }
                 }
+                *b = packet_box(p);
             });
         self.max_abs = max_abs;
         let pad = max_abs * (1.0 / 65536.0);
         let mut boxes = Vec::new();
         refit_tree::<WIDTH>(
             &mut self.nodes,
-            &plan.levels4,
-            &self.packets,
+            &plan.order4,
+            (&plan.last, &packet_boxes),
             pad,
             &mut boxes,
         );
         refit_tree::<WIDTH8>(
             &mut self.nodes8,
-            &plan.levels8,
-            &self.packets,
+            &plan.order8,
+            (&plan.last, &packet_boxes),
             pad,
             &mut boxes,
         );
