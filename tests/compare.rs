@@ -32,6 +32,10 @@ impl Drop for Scratch {
 
 /// Rows of a CSV written by `emc compare --csv`, as (header → value) lookups.
 fn read_csv(path: &PathBuf) -> Vec<Vec<(String, String)>> {
+    read_csv_with(path, CSV_HEADER)
+}
+
+fn read_csv_with(path: &PathBuf, want: &str) -> Vec<Vec<(String, String)>> {
     let text = std::fs::read_to_string(path).expect("csv written");
     let mut lines = text.lines();
     let header: Vec<String> = lines
@@ -40,7 +44,7 @@ fn read_csv(path: &PathBuf) -> Vec<Vec<(String, String)>> {
         .split(',')
         .map(String::from)
         .collect();
-    assert_eq!(header.join(","), CSV_HEADER);
+    assert_eq!(header.join(","), want);
     lines
         .map(|l| {
             let cells: Vec<&str> = l.split(',').collect();
@@ -71,9 +75,45 @@ fn compare_small(presets: &str, threads: usize) -> Vec<Vec<(String, String)>> {
         res: 64,
         camera: None,
         prims: Some(3000),
+        frames: None,
     })
     .expect("emc compare runs");
     read_csv(&csv)
+}
+
+/// `--frames` on the animated scene: one CSV row per frame with positive update times and
+/// trace speeds for emc, and for Embree's REFIT and LOW commits where the feature is on; a
+/// scene that is not animated is refused.
+#[test]
+fn frames_report_a_row_per_frame() {
+    let dir = Scratch::new("frames");
+    let csv = dir.join("frames.csv");
+    let args = |scene: &str| CompareArgs {
+        scenes: vec![scene.into()],
+        threads: 1,
+        csv: Some(csv.to_string_lossy().into_owned()),
+        runs: 1,
+        presets: "fast".into(),
+        res: 48,
+        camera: None,
+        prims: Some(4000),
+        frames: Some(3),
+    };
+    run(&args("builtin:wave")).expect("emc compare --frames runs");
+    let rows = read_csv_with(&csv, emc_cpu::cli::frames::FRAMES_CSV_HEADER);
+    assert_eq!(rows.len(), 3);
+    for (k, r) in rows.iter().enumerate() {
+        assert_eq!(cell(r, "frame"), (k + 1).to_string());
+        for col in ["refit_ms", "rebuild_ms", "mrays_refit", "mrays_rebuild"] {
+            let v: f64 = cell(r, col).parse().unwrap();
+            assert!(v > 0.0, "{col} = {v}");
+        }
+        for col in ["embree_refit_ms", "embree_low_ms", "mrays_embree_refit"] {
+            assert_eq!(!cell(r, col).is_empty(), cfg!(feature = "peers"), "{col}");
+        }
+    }
+    let e = run(&args("builtin:city")).unwrap_err().to_string();
+    assert!(e.contains("animated"), "{e}");
 }
 
 #[test]
@@ -87,6 +127,7 @@ fn bad_arguments_are_errors() {
         res: 16,
         camera: None,
         prims: Some(100),
+        frames: None,
     };
     let cases: Vec<(CompareArgs, &str)> = vec![
         (
@@ -137,6 +178,14 @@ fn bad_arguments_are_errors() {
                 ..base.clone()
             },
             "nonexistent-dir",
+        ),
+        (
+            CompareArgs {
+                frames: Some(0),
+                scenes: vec!["builtin:wave".into()],
+                ..base.clone()
+            },
+            "--frames",
         ),
     ];
     for (args, word) in cases {
@@ -444,6 +493,42 @@ mod peers {
         ob.rebuild(&s.vertices).unwrap();
         assert_eq!(p.run(&ob, 1).counts, ob_before);
         assert!(es.memory_bytes() > 0 && ob.memory_bytes() > 0);
+    }
+
+    /// Embree's dynamic scenes (geometry at REFIT, and at LOW) follow the moved vertices of
+    /// `builtin:wave`: frame by frame their primary hits are those of a fresh emc build of the
+    /// frame (within two rays of 4096) and of emc's refitted `Accel` (exactly).
+    #[test]
+    fn animated_scenes_follow_the_frames() {
+        use emc_cpu::peers::embree::{Animated, Update};
+        use emc_cpu::scene::builtin;
+        let side = builtin::wave_side(6000);
+        let idx = builtin::wave_indices(side);
+        let v0 = builtin::wave_vertices(side, 0);
+        let dev = Device::new(1).unwrap();
+        let (mut refit, _) = Animated::build(&dev, &v0, &idx, Update::Refit).unwrap();
+        let (mut low, _) = Animated::build(&dev, &v0, &idx, Update::Low).unwrap();
+        let opts = BuildOptions::preset(Preset::Fast);
+        let mut ours = Accel::build(&v0, &idx, &opts).unwrap();
+        for frame in [5, 30, 60] {
+            let v = builtin::wave_vertices(side, frame);
+            assert!(refit.update(&v).unwrap() > std::time::Duration::ZERO);
+            low.update(&v).unwrap();
+            ours.refit(&v).unwrap();
+            let tris: Vec<[Vec3; 3]> = idx.iter().map(|t| t.map(|i| v[i as usize])).collect();
+            let p = Protocol::new(tris, CameraMode::Outside, 64);
+            let fresh = Accel::build(&v, &idx, &opts).unwrap();
+            let hits = |t: &dyn Tracer| p.run(t, 1).counts.primary_hits as i64;
+            let want = hits(&fresh);
+            assert_eq!(hits(&ours), want, "frame {frame}: emc refit");
+            for (name, got) in [("REFIT", hits(&refit)), ("LOW", hits(&low))] {
+                assert!(
+                    (got - want).abs() <= 2,
+                    "frame {frame}: embree {name} {got} vs {want}"
+                );
+            }
+        }
+        assert!(refit.update(&v0[1..]).is_err());
     }
 
     /// The harness folder `../shared/peers`, if present.

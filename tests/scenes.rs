@@ -674,3 +674,40 @@ fn hard_cases_have_their_shape() {
         (1 << 21) + 3
     );
 }
+
+/// `builtin:wave`: the same indices at every frame, the same vertices for the same frame, moved
+/// vertices for another, `2(n − 1)²` triangles for the grid side of `--prims`, and every
+/// vertex finite and named by a triangle.
+#[test]
+fn wave_frames_are_deterministic_and_share_their_mesh() {
+    let at = |frame| {
+        scene::load_with(
+            "builtin:wave",
+            &SceneOptions::default().with_prims(5000).with_frame(frame),
+        )
+        .unwrap()
+    };
+    let (a, b, c) = (at(7), at(7), at(8));
+    assert_eq!(a.vertices, b.vertices);
+    assert_eq!(a.indices, c.indices);
+    assert_ne!(a.vertices, c.vertices);
+    let side = emc_cpu::scene::builtin::wave_side(5000);
+    assert_eq!(a.triangle_count(), 2 * (side - 1) * (side - 1));
+    assert!(a.vertices.iter().all(|v| v.is_finite()));
+    let mut named = vec![false; a.vertices.len()];
+    for t in &a.indices {
+        for &i in t {
+            named[i as usize] = true;
+        }
+    }
+    assert!(named.iter().all(|&n| n));
+    // The twist grows: frame 48 spans more of z than frame 0.
+    let zspan = |s: &emc_cpu::Scene| {
+        let (lo, hi) = s
+            .vertices
+            .iter()
+            .fold((f32::MAX, f32::MIN), |(l, h), v| (l.min(v.z), h.max(v.z)));
+        hi - lo
+    };
+    assert!(zspan(&at(48)) > 2.0 * zspan(&at(0)));
+}

@@ -1,4 +1,4 @@
-//! The per-box tests of the sample's one pass over all boxes ([`super::estimate`]): which of
+//! The per-box tests of the sample's one pass over all boxes ([`mod@super::estimate`]): which of
 //! eight boxes pass the size prefilter and which have their centre inside one of the dense
 //! windows' boxes. Three implementations with one signature, as bit masks: the plain one,
 //! SSE2 (every x86-64 CPU has it) and AVX (eight boxes per instruction, where the CPU has it,

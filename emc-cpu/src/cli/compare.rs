@@ -59,6 +59,10 @@ pub struct CompareArgs {
     /// Approximate triangle count of built-in scenes.
     #[arg(long)]
     pub prims: Option<usize>,
+    /// Animate instead (`builtin:wave`): per frame refit and rebuild against Embree's REFIT
+    /// and LOW commits of the same vertices, and the frame's primary rays through each.
+    #[arg(long)]
+    pub frames: Option<u32>,
 }
 
 /// A configuration measured: an emc preset or a peer.
@@ -336,11 +340,11 @@ fn time_builds<B>(
 }
 
 /// What the process holds across scenes: the emc/obvhs pool and the Embree device.
-struct Session {
-    threads: usize,
-    pool: rayon::ThreadPool,
+pub(crate) struct Session {
+    pub(crate) threads: usize,
+    pub(crate) pool: rayon::ThreadPool,
     #[cfg(feature = "peers")]
-    device: crate::peers::embree::Device,
+    pub(crate) device: crate::peers::embree::Device,
 }
 
 /// The configurations of a run: the presets asked for, then the peers compiled in.
@@ -774,6 +778,26 @@ pub fn run(args: &CompareArgs) -> anyhow::Result<()> {
     if let Some(c) = args.camera.as_deref() {
         c.parse::<CameraMode>().map_err(anyhow::Error::msg)?;
     }
+    let ctx = Session {
+        threads: args.threads,
+        pool: rayon::ThreadPoolBuilder::new()
+            .num_threads(args.threads)
+            .build()
+            .context("creating the thread pool")?,
+        #[cfg(feature = "peers")]
+        device: crate::peers::embree::Device::new(args.threads)?,
+    };
+    if let Some(n) = args.frames {
+        println!(
+            "emc compare --frames: {} thread{}, load average {}",
+            args.threads,
+            if args.threads == 1 { "" } else { "s" },
+            fmt_load(loadavg())
+        );
+        crate::cli::frames::run(args, &ctx, n)?;
+        println!("load average {} after", fmt_load(loadavg()));
+        return Ok(());
+    }
     let mut csv = match &args.csv {
         Some(p) => {
             let mut f = std::io::BufWriter::new(
@@ -783,15 +807,6 @@ pub fn run(args: &CompareArgs) -> anyhow::Result<()> {
             Some((p, f))
         }
         None => None,
-    };
-    let ctx = Session {
-        threads: args.threads,
-        pool: rayon::ThreadPoolBuilder::new()
-            .num_threads(args.threads)
-            .build()
-            .context("creating the thread pool")?,
-        #[cfg(feature = "peers")]
-        device: crate::peers::embree::Device::new(args.threads)?,
     };
     let configs = configs(&presets);
     println!(

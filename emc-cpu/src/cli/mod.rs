@@ -3,6 +3,7 @@
 
 pub mod build;
 pub mod compare;
+pub mod frames;
 pub mod hwsim;
 pub mod layout;
 pub mod paper;

@@ -262,10 +262,9 @@ pub fn stem_of(name: &str) -> String {
 }
 
 fn load_scenes(cfg: &PaperConfig) -> Result<Vec<Scene>, PaperError> {
-    let opts = SceneOptions {
-        prims: cfg.prims,
-        seed: cfg.seed,
-    };
+    let opts = SceneOptions::default()
+        .with_prims(cfg.prims)
+        .with_seed(cfg.seed);
     let mut out: Vec<Scene> = Vec::new();
     for spec in &cfg.scenes {
         let s = load_with(spec, &opts).map_err(|source| PaperError::Scene {

@@ -69,10 +69,14 @@ pub mod sys {
     pub const RTC_BUILD_QUALITY_LOW: RTCBuildQuality = 0;
     /// `RTC_BUILD_QUALITY_MEDIUM`: binned SAH.
     pub const RTC_BUILD_QUALITY_MEDIUM: RTCBuildQuality = 1;
+    /// `RTC_BUILD_QUALITY_REFIT`: a geometry's BVH refitted, not rebuilt, on commit.
+    pub const RTC_BUILD_QUALITY_REFIT: RTCBuildQuality = 3;
     /// `enum RTCSceneFlags`.
     pub type RTCSceneFlags = c_uint;
     /// `RTC_SCENE_FLAG_NONE`.
     pub const RTC_SCENE_FLAG_NONE: RTCSceneFlags = 0;
+    /// `RTC_SCENE_FLAG_DYNAMIC`: the scene is committed again after changes.
+    pub const RTC_SCENE_FLAG_DYNAMIC: RTCSceneFlags = 1;
     /// `enum RTCGeometryType`.
     pub type RTCGeometryType = c_uint;
     /// `RTC_GEOMETRY_TYPE_TRIANGLE`.
@@ -608,23 +612,7 @@ impl<'a> Scene<'a> {
     /// Closest hit of one ray through `rtcIntersect1` with `ctx`.
     #[inline]
     pub fn intersect(&self, ray: &Ray, ctx: &mut sys::RTCIntersectContext) -> Option<Hit> {
-        let mut rh = sys::RTCRayHit {
-            ray: to_rtc(ray),
-            hit: sys::RTCHit {
-                geom_id: sys::RTC_INVALID_GEOMETRY_ID,
-                prim_id: sys::RTC_INVALID_GEOMETRY_ID,
-                ..sys::RTCHit::default()
-            },
-        };
-        // SAFETY: the scene is committed and alive; `ctx` and `rh` are valid, aligned, writable
-        // structs of the C layout, borrowed for the call only.
-        unsafe { sys::rtcIntersect1(self.raw, ctx, &mut rh) };
-        (rh.hit.geom_id != sys::RTC_INVALID_GEOMETRY_ID).then_some(Hit {
-            t: rh.ray.tfar,
-            prim: rh.hit.prim_id,
-            u: rh.hit.u,
-            v: rh.hit.v,
-        })
+        intersect_raw(self.raw, ray, ctx)
     }
 
     /// Whether one ray is occluded, through `rtcOccluded1` with `ctx`.
@@ -646,6 +634,202 @@ impl Drop for Scene<'_> {
             sys::rtcReleaseGeometry(self.geometry);
         }
     }
+}
+
+/// How an [`Animated`] scene takes moved vertices at its next commit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Update {
+    /// The geometry's build quality `RTC_BUILD_QUALITY_REFIT`: its BVH refitted.
+    Refit,
+    /// `RTC_BUILD_QUALITY_LOW`: the Morton builder run again.
+    Low,
+}
+
+impl Update {
+    /// The row label.
+    pub fn name(self) -> &'static str {
+        match self {
+            Update::Refit => "embree REFIT",
+            Update::Low => "embree LOW",
+        }
+    }
+}
+
+/// A one-mesh scene whose vertices move between commits (Embree's dynamic-scene recipe: the
+/// scene flagged `RTC_SCENE_FLAG_DYNAMIC` at build quality LOW, the geometry at the
+/// [`Update`]'s quality, positions in a shared buffer that the scene owns, and per frame
+/// `rtcUpdateGeometryBuffer`, `rtcCommitGeometry`, `rtcCommitScene`).
+#[derive(Debug)]
+pub struct Animated<'a> {
+    device: &'a Device,
+    /// Packed xyz plus 16 bytes of padding; never reallocated while the scene exists.
+    positions: Box<[f32]>,
+    indices: Box<[u32]>,
+    raw: sys::RTCScene,
+    geometry: sys::RTCGeometry,
+}
+
+// SAFETY: as for `Scene`: tracing takes `&self` (Embree's contract allows any number of
+// threads), the buffer writes and commits take `&mut self`.
+unsafe impl Sync for Animated<'_> {}
+// SAFETY: the handles may be used and released from any thread.
+unsafe impl Send for Animated<'_> {}
+
+impl<'a> Animated<'a> {
+    /// Build over `vertices` and `indices` (checked as [`Mesh::new`] checks them); returns the
+    /// scene and the wall time of its first commit.
+    pub fn build(
+        device: &'a Device,
+        vertices: &[Vec3],
+        indices: &[[u32; 3]],
+        update: Update,
+    ) -> Result<(Animated<'a>, Duration), EmbreeError> {
+        let mesh = Mesh::new(vertices, indices)?;
+        device.check("an earlier call")?;
+        let positions = mesh.positions.into_boxed_slice();
+        let indices = mesh.indices.into_boxed_slice();
+        let q = match update {
+            Update::Refit => sys::RTC_BUILD_QUALITY_REFIT,
+            Update::Low => sys::RTC_BUILD_QUALITY_LOW,
+        };
+        let t0 = Instant::now();
+        // SAFETY: the device is live for 'a; the shared buffers point into the boxed slices,
+        // which the scene owns and never reallocates, with the counts of `Mesh::new`'s checks
+        // (positions: `vertex_count` triples plus 16 bytes; indices in range).
+        let (raw, geometry) = unsafe {
+            let raw = sys::rtcNewScene(device.raw);
+            sys::rtcSetSceneBuildQuality(raw, sys::RTC_BUILD_QUALITY_LOW);
+            sys::rtcSetSceneFlags(raw, sys::RTC_SCENE_FLAG_DYNAMIC);
+            let g = sys::rtcNewGeometry(device.raw, sys::RTC_GEOMETRY_TYPE_TRIANGLE);
+            sys::rtcSetSharedGeometryBuffer(
+                g,
+                sys::RTC_BUFFER_TYPE_VERTEX,
+                0,
+                sys::RTC_FORMAT_FLOAT3,
+                positions.as_ptr() as *const c_void,
+                0,
+                3 * size_of::<f32>(),
+                mesh.vertex_count,
+            );
+            sys::rtcSetSharedGeometryBuffer(
+                g,
+                sys::RTC_BUFFER_TYPE_INDEX,
+                0,
+                sys::RTC_FORMAT_UINT3,
+                indices.as_ptr() as *const c_void,
+                0,
+                3 * size_of::<u32>(),
+                indices.len() / 3,
+            );
+            sys::rtcSetGeometryBuildQuality(g, q);
+            sys::rtcCommitGeometry(g);
+            sys::rtcAttachGeometry(raw, g);
+            sys::rtcCommitScene(raw);
+            (raw, g)
+        };
+        let elapsed = t0.elapsed();
+        let a = Animated {
+            device,
+            positions,
+            indices,
+            raw,
+            geometry,
+        };
+        device.check("building an animated scene")?;
+        Ok((a, elapsed))
+    }
+
+    /// Move the vertices (same count; the copy into the shared buffer is not timed) and
+    /// commit; returns the wall time of `rtcUpdateGeometryBuffer` to the end of
+    /// `rtcCommitScene`.
+    pub fn update(&mut self, vertices: &[Vec3]) -> Result<Duration, EmbreeError> {
+        if 3 * vertices.len() + 4 != self.positions.len() {
+            return Err(EmbreeError::Mesh(format!(
+                "{} vertices given, the scene has {}",
+                vertices.len(),
+                (self.positions.len() - 4) / 3
+            )));
+        }
+        for (p, v) in self.positions.chunks_exact_mut(3).zip(vertices) {
+            p.copy_from_slice(&[v.x, v.y, v.z]);
+        }
+        let t0 = Instant::now();
+        // SAFETY: scene and geometry are live and owned by `self`; `&mut self` excludes
+        // tracing during the commit; the buffer stays where it was.
+        unsafe {
+            sys::rtcUpdateGeometryBuffer(self.geometry, sys::RTC_BUFFER_TYPE_VERTEX, 0);
+            sys::rtcCommitGeometry(self.geometry);
+            sys::rtcCommitScene(self.raw);
+        }
+        let elapsed = t0.elapsed();
+        self.device.check("committing an animated scene")?;
+        Ok(elapsed)
+    }
+
+    /// Triangles.
+    pub fn triangle_count(&self) -> usize {
+        self.indices.len() / 3
+    }
+
+    /// Closest hit of one ray through `rtcIntersect1` with `ctx`.
+    #[inline]
+    pub fn intersect(&self, ray: &Ray, ctx: &mut sys::RTCIntersectContext) -> Option<Hit> {
+        intersect_raw(self.raw, ray, ctx)
+    }
+}
+
+impl Drop for Animated<'_> {
+    fn drop(&mut self) {
+        // SAFETY: both handles are live and owned by this scene; each is released once.
+        unsafe {
+            sys::rtcReleaseScene(self.raw);
+            sys::rtcReleaseGeometry(self.geometry);
+        }
+    }
+}
+
+impl Tracer for Animated<'_> {
+    /// Primary rays: one COHERENT context per thread.
+    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Timing) {
+        trace_closest(rays, threads, || context(true), |c, r| self.intersect(r, c))
+    }
+    /// Occlusion: one INCOHERENT context per thread.
+    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Timing) {
+        trace_occluded(
+            rays,
+            threads,
+            || context(false),
+            |c, r| {
+                let mut q = to_rtc(r);
+                // SAFETY: the scene is committed and alive; `c` and `q` are valid structs
+                // of the C layout, borrowed for the call only.
+                unsafe { sys::rtcOccluded1(self.raw, c, &mut q) };
+                q.tfar < 0.0
+            },
+        )
+    }
+}
+
+/// Closest hit of one ray in a committed scene.
+#[inline]
+fn intersect_raw(raw: sys::RTCScene, ray: &Ray, ctx: &mut sys::RTCIntersectContext) -> Option<Hit> {
+    let mut rh = sys::RTCRayHit {
+        ray: to_rtc(ray),
+        hit: sys::RTCHit {
+            geom_id: sys::RTC_INVALID_GEOMETRY_ID,
+            prim_id: sys::RTC_INVALID_GEOMETRY_ID,
+            ..sys::RTCHit::default()
+        },
+    };
+    // SAFETY: callers pass a committed, live scene; `ctx` and `rh` are valid, aligned,
+    // writable structs of the C layout, borrowed for the call only.
+    unsafe { sys::rtcIntersect1(raw, ctx, &mut rh) };
+    (rh.hit.geom_id != sys::RTC_INVALID_GEOMETRY_ID).then_some(Hit {
+        t: rh.ray.tfar,
+        prim: rh.hit.prim_id,
+        u: rh.hit.u,
+        v: rh.hit.v,
+    })
 }
 
 /// The harness's ray: origin, direction, the interval, time 0, mask all ones, id 0, flags 0.

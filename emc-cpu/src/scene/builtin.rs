@@ -34,6 +34,13 @@ pub const HARD_NAMES: [&str; 14] = [
     "hard-duplicates",
 ];
 
+/// The animated built-in scenes: the same mesh (indices) at every frame, vertices moving with
+/// [`SceneOptions::frame`] (see [`wave_vertices`]).
+pub const ANIMATED_NAMES: [&str; 1] = ["wave"];
+
+/// Frames per unit of time of the animated scenes.
+pub const FRAMES_PER_SECOND: f32 = 24.0;
+
 /// Default triangle count of the hard cases, except `hard-one-big` (10^6 tiny + 1) and
 /// `hard-same-cell` (2^21 + 1 in one cell + 2 corners).
 pub const HARD_DEFAULT_PRIMS: usize = 100_000;
@@ -77,6 +84,13 @@ pub const CITY_MAX_HEIGHT: f32 = 200.0;
 ///   (the count is of the remaining triangles);
 /// - `hard-duplicates`: every triangle identical (0,0,0), (1,0,0), (0,1,0).
 ///
+/// The animated scene (same indices at every frame, [`SceneOptions::frame`] picks the
+/// vertices):
+/// - `wave`: an `n × n` grid sheet over the unit square, `2(n − 1)²` triangles with
+///   `n = round(√(prims / 2)) + 1` (at least 2), displaced by a travelling wave and twisted
+///   about its x axis by an angle that grows with time and with x (see [`wave_vertices`]);
+///   the seed is not used.
+///
 /// `prims = Some(0)` is an error.
 pub fn generate(name: &str, opts: &SceneOptions) -> Result<Scene, SceneError> {
     if opts.prims == Some(0) {
@@ -99,6 +113,15 @@ pub fn generate(name: &str, opts: &SceneOptions) -> Result<Scene, SceneError> {
             let level = sphere_level(opts.prims);
             return Ok(icosphere(level, 1.0));
         }
+        "wave" => {
+            let side = wave_side(n);
+            return Ok(Scene {
+                name: "builtin:wave".to_string(),
+                vertices: wave_vertices(side, opts.frame),
+                indices: wave_indices(side),
+                dropped_nonfinite: 0,
+            });
+        }
         _ => return Err(SceneError::UnknownBuiltin(name.to_string())),
     }
     let scene = soup.into_scene(format!("builtin:{name}"));
@@ -108,6 +131,44 @@ pub fn generate(name: &str, opts: &SceneOptions) -> Result<Scene, SceneError> {
         });
     }
     Ok(scene)
+}
+
+/// Grid side of `builtin:wave` for about `prims` triangles.
+pub fn wave_side(prims: usize) -> usize {
+    (((prims as f64 / 2.0).sqrt()).round() as usize + 1).max(2)
+}
+
+/// Triangles of the `side × side` grid of `builtin:wave` (two per cell, row-major).
+pub fn wave_indices(side: usize) -> Vec<[u32; 3]> {
+    let mut out = Vec::with_capacity(2 * (side - 1) * (side - 1));
+    for y in 0..side - 1 {
+        for x in 0..side - 1 {
+            let i = (y * side + x) as u32;
+            let (r, d) = (i + 1, i + side as u32);
+            out.push([i, r, d]);
+            out.push([r, d + 1, d]);
+        }
+    }
+    out
+}
+
+/// Vertices of `builtin:wave` at `frame` (time `t = frame / FRAMES_PER_SECOND`): grid point
+/// `(u, v)` of the unit square rises by `0.08 · sin(2π(3u − t)) · cos(2π(2v + t/2))`, then
+/// turns about the line `y = 0.5, z = 0` by `1.5 · t · (u − 0.5)` radians (a twist that
+/// tightens over time, so a tree refitted from frame 0 loosens frame by frame).
+pub fn wave_vertices(side: usize, frame: u32) -> Vec<Vec3> {
+    let t = frame as f32 / FRAMES_PER_SECOND;
+    let tau = std::f32::consts::TAU;
+    let step = 1.0 / (side - 1) as f32;
+    (0..side * side)
+        .map(|i| {
+            let (u, v) = ((i % side) as f32 * step, (i / side) as f32 * step);
+            let z = 0.08 * (tau * (3.0 * u - t)).sin() * (tau * (2.0 * v + 0.5 * t)).cos();
+            let (s, c) = (1.5 * t * (u - 0.5)).sin_cos();
+            let y = v - 0.5;
+            Vec3::new(u, 0.5 + c * y - s * z, s * y + c * z)
+        })
+        .collect()
 }
 
 /// The hard-case generators (see [`generate`]).

@@ -107,8 +107,9 @@ pub enum SceneError {
     },
     /// `builtin:NAME` with a name that is not a built-in scene.
     #[error(
-        "unknown built-in scene `{0}` (known: {known}, {hard})",
+        "unknown built-in scene `{0}` (known: {known}, {animated}, {hard})",
         known = builtin::NAMES.join(", "),
+        animated = builtin::ANIMATED_NAMES.join(", "),
         hard = builtin::HARD_NAMES.join(", ")
     )]
     UnknownBuiltin(String),
@@ -210,6 +211,8 @@ pub struct SceneOptions {
     pub prims: Option<usize>,
     /// Seed of the built-in generators (same seed, same scene, bit for bit).
     pub seed: u64,
+    /// Frame of an animated built-in scene (`builtin:wave`); the others ignore it.
+    pub frame: u32,
 }
 
 impl Default for SceneOptions {
@@ -217,6 +220,7 @@ impl Default for SceneOptions {
         SceneOptions {
             prims: None,
             seed: builtin::DEFAULT_SEED,
+            frame: 0,
         }
     }
 }
@@ -235,6 +239,13 @@ impl SceneOptions {
         self.seed = seed;
         self
     }
+
+    /// At this frame of an animated built-in scene.
+    #[inline]
+    pub fn with_frame(mut self, frame: u32) -> SceneOptions {
+        self.frame = frame;
+        self
+    }
 }
 
 /// Load a scene with default options. See [`load_with`] for the spec syntax.
@@ -246,7 +257,7 @@ pub fn load(spec: &str) -> Result<Scene, SceneError> {
 ///
 /// `spec` is one of:
 /// - `builtin:NAME`: a procedural scene of [`builtin::NAMES`], sized by `opts.prims` and seeded
-///   by `opts.seed`;
+///   by `opts.seed`, or an animated one of [`builtin::ANIMATED_NAMES`] at `opts.frame`;
 /// - a path to an `.obj` or `.obj.zst` file (if the file exists, or the spec ends in one of
 ///   those extensions);
 /// - a bare shared-scene name such as `pbrt-bathroom`, looked up by [`shared_scene_path`].
