@@ -337,9 +337,56 @@ fn shuffled_layouts(spec: &LayoutSpec, frame: &Frame, count: usize) -> Vec<emc_c
         .collect()
 }
 
+/// A needle frame (x from 0 to `E`, y and z `2^-55 E` thin: `emc64-var` gives x 56 bits) and
+/// points whose scaled x is a rounding case of the fp64 multiplier: with `E` chosen so that the
+/// x scale's significand has exactly 22 trailing zeros, a point `p = A · 2^-24` (A odd) makes
+/// the exact product `2p · scale` end in the bits `…0 1 1 0…0` (`2^51` below the guard bit):
+/// round-to-nearest goes up, and only the sticky bit of the discarded bits below the guard
+/// says so (without it the product looks like a tie and rounds to even). At 56 bits one
+/// ulp of the scaled value is 8 code units, so the code shows the sticky bit.
+fn multiplier_tie_frame() -> (Frame, Vec<Aabb>) {
+    let e = f32::from_bits(0x3f8b_0585);
+    let thin = e * 2f32.powi(-55);
+    let scene = vec![
+        Aabb::point(Vec3::ZERO),
+        Aabb::point(Vec3::new(e, thin, thin)),
+    ];
+    let frame = Frame::new(&scene).unwrap();
+    let layout = LayoutSpec::Emc64Var.resolve(frame.extent());
+    assert_eq!(
+        layout.bit_counts(),
+        [56, 1, 1, 6],
+        "the needle frame's layout"
+    );
+    let hs = emc_core::quantize::position_scale(56, frame.extent()[0]) * 0.5;
+    let significand = (hs.to_bits() & ((1u64 << 52) - 1)) | (1u64 << 52);
+    assert_eq!(
+        significand.trailing_zeros(),
+        22,
+        "the x scale of the tie frame"
+    );
+    let mut boxes = scene;
+    let mut a = (1u32 << 24) - 1;
+    let mut ties = 0;
+    while ties < 8 && a > 1 << 23 {
+        let p = a as f32 * 2f32.powi(-24);
+        let x = 2.0 * p as f64;
+        let q = x * hs;
+        // Rounded up by a quarter ulp from an even significand: the case above.
+        if x.mul_add(hs, -q) == -(q.next_up() - q) / 4.0 && q.to_bits() & 1 == 1 {
+            boxes.push(Aabb::point(Vec3::new(p, 0.0, 0.0)));
+            ties += 1;
+        }
+        a -= 2;
+    }
+    assert_eq!(ties, 8, "rounding cases of the tie frame");
+    (frame, boxes)
+}
+
 /// The emitted files of a configuration on every frame of [`frames_and_boxes`] and, for a
 /// configuration whose interleave is programmable (an adaptive layout name), on irregular
-/// images of the first frame too ([`shuffled_layouts`]). The RTL of all images must be the
+/// images of the first frame too ([`shuffled_layouts`]), and for `emc64-var` on the
+/// multiplier's rounding cases ([`multiplier_tie_frame`]). The RTL of all images must be the
 /// same text (the structure is the configuration's; a frame or an image only reprograms the
 /// registers).
 fn frames_of(spec: &LayoutSpec, opts: &UnitOptions) -> Vec<Image> {
@@ -357,6 +404,14 @@ fn frames_of(spec: &LayoutSpec, opts: &UnitOptions) -> Vec<Image> {
             }
         })
         .collect();
+    if *spec == LayoutSpec::Emc64Var {
+        let (f, b) = multiplier_tie_frame();
+        sets.push(Image {
+            layout: *spec,
+            frame: f,
+            files: emit(&Unit::for_spec(spec, &f, opts).unwrap(), &b).unwrap(),
+        });
+    }
     if spec.is_adaptive() {
         let (f, b) = &frames[0];
         for layout in shuffled_layouts(spec, f, 3) {
@@ -728,10 +783,11 @@ fn wire_swaps(verilog: &str, count: usize, seed: u64) -> Vec<(String, String)> {
         }
         out.push((
             format!(
-                "line {}: {} -> {} in `{}`",
+                "line {}: {} -> {} at column {} of `{}`",
                 li + 1,
                 d.name,
                 o.name,
+                eq + a,
                 l.trim()
             ),
             text,
@@ -742,11 +798,10 @@ fn wire_swaps(verilog: &str, count: usize, seed: u64) -> Vec<(String, String)> {
 
 /// Ten random single-wire swaps over four configurations, each caught. `EMC_MUTANT_SURVEY=N`
 /// runs N swaps per configuration instead and lists the survivors without failing (to study
-/// the testbench's strength). Survey of 12 per configuration (48 swaps, same seeds): 46
-/// caught. The two survivors: the sign of a zero in the binary32 → binary64 conversion (an
-/// equivalent mutant: no code depends on the sign of a zero), and the fp64 multiplier's
-/// sticky bit when the exact product's low 52 bits are `2^51` (a rounding case that needs
-/// the scaled offset and the scale to share 51 trailing zeros; no vector reaches it).
+/// the testbench's strength). Survey of 12 per configuration (48 swaps, same seeds): 47
+/// caught. The one survivor, `f -> sh` at column 49 of the binary32 → binary64 conversion,
+/// is the sign of a zero (an equivalent mutant: no code depends on the sign of a zero). The
+/// fp64 multiplier's sticky bit, which survived before [`multiplier_tie_frame`], is caught.
 #[test]
 fn hw_every_single_wire_swap_is_caught() {
     if !have("iverilog", "-V") {
