@@ -533,35 +533,12 @@ impl<'a> Scene<'a> {
         // `Mesh::new`). Where the harness releases the geometry after attaching it, the scene
         // keeps that reference for `rebuild` and releases it in `Drop`.
         let (raw, geometry) = unsafe {
-            let raw = sys::rtcNewScene(device.raw);
-            sys::rtcSetSceneBuildQuality(raw, q);
-            sys::rtcSetSceneFlags(raw, sys::RTC_SCENE_FLAG_NONE);
-            let g = sys::rtcNewGeometry(device.raw, sys::RTC_GEOMETRY_TYPE_TRIANGLE);
-            sys::rtcSetSharedGeometryBuffer(
-                g,
-                sys::RTC_BUFFER_TYPE_VERTEX,
-                0,
-                sys::RTC_FORMAT_FLOAT3,
-                mesh.positions.as_ptr() as *const c_void,
-                0,
-                3 * size_of::<f32>(),
-                mesh.vertex_count,
-            );
-            sys::rtcSetSharedGeometryBuffer(
-                g,
-                sys::RTC_BUFFER_TYPE_INDEX,
-                0,
-                sys::RTC_FORMAT_UINT3,
-                mesh.indices.as_ptr() as *const c_void,
-                0,
-                3 * size_of::<u32>(),
-                mesh.triangle_count(),
-            );
-            sys::rtcSetGeometryBuildQuality(g, q);
-            sys::rtcCommitGeometry(g);
-            sys::rtcAttachGeometry(raw, g);
-            sys::rtcCommitScene(raw);
-            (raw, g)
+            commit_shared(
+                device,
+                (&mesh.positions, mesh.vertex_count),
+                &mesh.indices,
+                (q, sys::RTC_SCENE_FLAG_NONE, q),
+            )
         };
         let elapsed = t0.elapsed();
         let scene = Scene {
@@ -583,11 +560,7 @@ impl<'a> Scene<'a> {
         let t0 = Instant::now();
         // SAFETY: the scene and geometry are live (owned by `self`), the shared buffers still
         // point into the borrowed mesh; `&mut self` excludes concurrent tracing.
-        unsafe {
-            sys::rtcUpdateGeometryBuffer(self.geometry, sys::RTC_BUFFER_TYPE_VERTEX, 0);
-            sys::rtcCommitGeometry(self.geometry);
-            sys::rtcCommitScene(self.raw);
-        }
+        unsafe { recommit(self.raw, self.geometry) };
         let elapsed = t0.elapsed();
         self.device.check("rebuilding a scene")?;
         Ok(elapsed)
@@ -618,10 +591,7 @@ impl<'a> Scene<'a> {
     /// Whether one ray is occluded, through `rtcOccluded1` with `ctx`.
     #[inline]
     pub fn occluded(&self, ray: &Ray, ctx: &mut sys::RTCIntersectContext) -> bool {
-        let mut r = to_rtc(ray);
-        // SAFETY: as in `intersect`.
-        unsafe { sys::rtcOccluded1(self.raw, ctx, &mut r) };
-        r.tfar < 0.0
+        occluded_raw(self.raw, ray, ctx)
     }
 }
 
@@ -697,35 +667,12 @@ impl<'a> Animated<'a> {
         // which the scene owns and never reallocates, with the counts of `Mesh::new`'s checks
         // (positions: `vertex_count` triples plus 16 bytes; indices in range).
         let (raw, geometry) = unsafe {
-            let raw = sys::rtcNewScene(device.raw);
-            sys::rtcSetSceneBuildQuality(raw, sys::RTC_BUILD_QUALITY_LOW);
-            sys::rtcSetSceneFlags(raw, sys::RTC_SCENE_FLAG_DYNAMIC);
-            let g = sys::rtcNewGeometry(device.raw, sys::RTC_GEOMETRY_TYPE_TRIANGLE);
-            sys::rtcSetSharedGeometryBuffer(
-                g,
-                sys::RTC_BUFFER_TYPE_VERTEX,
-                0,
-                sys::RTC_FORMAT_FLOAT3,
-                positions.as_ptr() as *const c_void,
-                0,
-                3 * size_of::<f32>(),
-                mesh.vertex_count,
-            );
-            sys::rtcSetSharedGeometryBuffer(
-                g,
-                sys::RTC_BUFFER_TYPE_INDEX,
-                0,
-                sys::RTC_FORMAT_UINT3,
-                indices.as_ptr() as *const c_void,
-                0,
-                3 * size_of::<u32>(),
-                indices.len() / 3,
-            );
-            sys::rtcSetGeometryBuildQuality(g, q);
-            sys::rtcCommitGeometry(g);
-            sys::rtcAttachGeometry(raw, g);
-            sys::rtcCommitScene(raw);
-            (raw, g)
+            commit_shared(
+                device,
+                (&positions, mesh.vertex_count),
+                &indices,
+                (sys::RTC_BUILD_QUALITY_LOW, sys::RTC_SCENE_FLAG_DYNAMIC, q),
+            )
         };
         let elapsed = t0.elapsed();
         let a = Animated {
@@ -756,11 +703,7 @@ impl<'a> Animated<'a> {
         let t0 = Instant::now();
         // SAFETY: scene and geometry are live and owned by `self`; `&mut self` excludes
         // tracing during the commit; the buffer stays where it was.
-        unsafe {
-            sys::rtcUpdateGeometryBuffer(self.geometry, sys::RTC_BUFFER_TYPE_VERTEX, 0);
-            sys::rtcCommitGeometry(self.geometry);
-            sys::rtcCommitScene(self.raw);
-        }
+        unsafe { recommit(self.raw, self.geometry) };
         let elapsed = t0.elapsed();
         self.device.check("committing an animated scene")?;
         Ok(elapsed)
@@ -799,15 +742,84 @@ impl Tracer for Animated<'_> {
             rays,
             threads,
             || context(false),
-            |c, r| {
-                let mut q = to_rtc(r);
-                // SAFETY: the scene is committed and alive; `c` and `q` are valid structs
-                // of the C layout, borrowed for the call only.
-                unsafe { sys::rtcOccluded1(self.raw, c, &mut q) };
-                q.tfar < 0.0
-            },
+            |c, r| occluded_raw(self.raw, r, c),
         )
     }
+}
+
+/// A scene of one triangle geometry over shared buffers (`positions`: packed xyz of
+/// `vertex_count` vertices plus 16 bytes of padding; `indices`: packed triples), committed at
+/// the given (scene quality, scene flags, geometry quality). The geometry keeps its creation
+/// reference, released by the caller with the scene.
+///
+/// # Safety
+/// `device` is live; both buffers outlive the scene and are not written while Embree reads
+/// them; every index is below `vertex_count` (as [`Mesh::new`] checks).
+unsafe fn commit_shared(
+    device: &Device,
+    (positions, vertex_count): (&[f32], usize),
+    indices: &[u32],
+    (scene_quality, flags, geometry_quality): (
+        sys::RTCBuildQuality,
+        sys::RTCSceneFlags,
+        sys::RTCBuildQuality,
+    ),
+) -> (sys::RTCScene, sys::RTCGeometry) {
+    // SAFETY: the caller's contract above.
+    unsafe {
+        let raw = sys::rtcNewScene(device.raw);
+        sys::rtcSetSceneBuildQuality(raw, scene_quality);
+        sys::rtcSetSceneFlags(raw, flags);
+        let g = sys::rtcNewGeometry(device.raw, sys::RTC_GEOMETRY_TYPE_TRIANGLE);
+        sys::rtcSetSharedGeometryBuffer(
+            g,
+            sys::RTC_BUFFER_TYPE_VERTEX,
+            0,
+            sys::RTC_FORMAT_FLOAT3,
+            positions.as_ptr() as *const c_void,
+            0,
+            3 * size_of::<f32>(),
+            vertex_count,
+        );
+        sys::rtcSetSharedGeometryBuffer(
+            g,
+            sys::RTC_BUFFER_TYPE_INDEX,
+            0,
+            sys::RTC_FORMAT_UINT3,
+            indices.as_ptr() as *const c_void,
+            0,
+            3 * size_of::<u32>(),
+            indices.len() / 3,
+        );
+        sys::rtcSetGeometryBuildQuality(g, geometry_quality);
+        sys::rtcCommitGeometry(g);
+        sys::rtcAttachGeometry(raw, g);
+        sys::rtcCommitScene(raw);
+        (raw, g)
+    }
+}
+
+/// The vertex buffer marked updated, the geometry and the scene committed again.
+///
+/// # Safety
+/// `raw` and `geometry` are live and attached; nothing traces the scene meanwhile.
+unsafe fn recommit(raw: sys::RTCScene, geometry: sys::RTCGeometry) {
+    // SAFETY: the caller's contract above.
+    unsafe {
+        sys::rtcUpdateGeometryBuffer(geometry, sys::RTC_BUFFER_TYPE_VERTEX, 0);
+        sys::rtcCommitGeometry(geometry);
+        sys::rtcCommitScene(raw);
+    }
+}
+
+/// Whether one ray is occluded in a committed scene.
+#[inline]
+fn occluded_raw(raw: sys::RTCScene, ray: &Ray, ctx: &mut sys::RTCIntersectContext) -> bool {
+    let mut r = to_rtc(ray);
+    // SAFETY: callers pass a committed, live scene; `ctx` and `r` are valid structs of the C
+    // layout, borrowed for the call only.
+    unsafe { sys::rtcOccluded1(raw, ctx, &mut r) };
+    r.tfar < 0.0
 }
 
 /// Closest hit of one ray in a committed scene.
