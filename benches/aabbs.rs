@@ -6,9 +6,9 @@
 use criterion::{BenchmarkId, Criterion, Throughput};
 use emc_core::Aabb;
 use emc_cpu::aabbs::{chunk_aabbs, triangle_aabbs_with, AabbPath};
-use emc_cpu::scene::{self, builtin::Pcg32, Scene};
+use emc_cpu::scene::{self, builtin::Pcg32, Mesh};
 
-fn inputs() -> Vec<(String, Scene)> {
+fn inputs() -> Vec<(String, Mesh)> {
     let mut v = Vec::new();
     if scene::shared_scene_path("pbrt-bathroom").is_some() {
         v.push((

@@ -1,4 +1,4 @@
-//! Scene loading speed on the shared scenes: the whole `scene::load` (read, zstd, line check,
+//! Mesh loading speed on the shared scenes: the whole `scene::load` (read, zstd, line check,
 //! `tobj`, assembly), the parse of already decompressed bytes, and the line check alone (its
 //! cost relative to the parse is the overhead of naming malformed lines). Scenes up to 1M
 //! triangles by default; `EMC_BENCH_LARGE=1` adds crown and San Miguel:

@@ -4,7 +4,7 @@
 //! validator, `rebuild` after moving the vertices equals a fresh build of the moved mesh, and
 //! bad input is refused with an error.
 
-use emc_cpu::scene::{self, builtin, Scene, SceneOptions};
+use emc_cpu::scene::{self, builtin, Mesh, SceneOptions};
 use emc_cpu::trace::intersect::{brute_force_closest, brute_force_occluded};
 use emc_cpu::trace::traverse::brute_force_packets;
 use emc_cpu::trace::wide::TriPacket;
@@ -15,7 +15,7 @@ use rayon::prelude::*;
 
 const PRESETS: [Preset; 3] = [Preset::Fast, Preset::Balanced, Preset::Quality];
 
-fn triangles(s: &Scene) -> Vec<[Vec3; 3]> {
+fn triangles(s: &Mesh) -> Vec<[Vec3; 3]> {
     (0..s.triangle_count()).map(|i| s.triangle(i)).collect()
 }
 
@@ -109,7 +109,7 @@ fn check(name: &str, a: &Accel, rays: &[Ray], want: &[(Option<Hit>, bool)]) {
     );
 }
 
-fn build(s: &Scene, preset: Preset, width: usize) -> Accel {
+fn build(s: &Mesh, preset: Preset, width: usize) -> Accel {
     let opts = BuildOptions::preset(preset).with_width(width);
     let a = Accel::build(&s.vertices, &s.indices, &opts)
         .unwrap_or_else(|e| panic!("{preset:?}/{width} builds: {e}"));
@@ -119,7 +119,7 @@ fn build(s: &Scene, preset: Preset, width: usize) -> Accel {
     a
 }
 
-fn check_scene(label: &str, s: &Scene, rays: usize) {
+fn check_scene(label: &str, s: &Mesh, rays: usize) {
     let tris = triangles(s);
     let rays = rays_for(&tris, rays, 17);
     let want = brute_force(&tris, &rays);
@@ -221,7 +221,7 @@ fn rebuild_equals_a_fresh_build_of_the_moved_mesh() {
             for frame in 1..=3 {
                 let v = moved(&s.vertices, frame as f32);
                 a.rebuild(&v).unwrap();
-                let fresh_scene = Scene {
+                let fresh_scene = Mesh {
                     vertices: v.clone(),
                     ..s.clone()
                 };
@@ -329,7 +329,7 @@ fn refit_keeps_the_topology_and_follows_the_moved_mesh() {
                     a.wide_bvh()
                         .validate(a.triangle_count(), |i| a.triangle(i))
                         .unwrap_or_else(|e| panic!("{label} frame {frame}: {e}"));
-                    let moved_scene = Scene {
+                    let moved_scene = Mesh {
                         vertices: v.clone(),
                         ..s.clone()
                     };

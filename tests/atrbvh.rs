@@ -18,7 +18,7 @@ use glam::Vec3;
 use proptest::prelude::*;
 
 // ---------------------------------------------------------------------------------------------
-// Scene and tree helpers (test-only).
+// Mesh and tree helpers (test-only).
 
 /// A small deterministic generator (xorshift64*), so the tests need no extra dependency.
 struct Rng(u64);

@@ -295,17 +295,17 @@ fn with_the_feature_peer_rows_and_ratios() {
 #[cfg(feature = "peers")]
 mod peers {
     use super::*;
-    use emc_cpu::peers::embree::{sys, Device, Mesh, Quality, Scene as EScene};
+    use emc_cpu::peers::embree::{sys, Device, Mesh as EMesh, Quality, Scene as EScene};
     use emc_cpu::peers::obvhs;
     use emc_cpu::peers::{FtzGuard, Protocol, Tracer};
-    use emc_cpu::scene::{self, Scene, SceneOptions};
+    use emc_cpu::scene::{self, Mesh, SceneOptions};
     use emc_cpu::trace::workload::CameraMode;
     use emc_cpu::trace::{Accel, BuildOptions, Preset};
     use glam::Vec3;
     use std::mem::{align_of, offset_of, size_of};
     use std::process::Command;
 
-    fn triangles(s: &Scene) -> Vec<[Vec3; 3]> {
+    fn triangles(s: &Mesh) -> Vec<[Vec3; 3]> {
         (0..s.triangle_count()).map(|i| s.triangle(i)).collect()
     }
 
@@ -464,9 +464,9 @@ mod peers {
     #[test]
     fn bad_meshes_are_errors() {
         let v = [Vec3::ZERO, Vec3::X, Vec3::Y];
-        let e = Mesh::new(&v, &[[0, 1, 3]]).expect_err("index 3 of 3");
+        let e = EMesh::new(&v, &[[0, 1, 3]]).expect_err("index 3 of 3");
         assert!(e.to_string().contains("vertex 3"), "{e}");
-        assert!(Mesh::new(&v, &[]).is_err());
+        assert!(EMesh::new(&v, &[]).is_err());
         let e = obvhs::Bvh::build(&v, &[[0, 1, 7]]).expect_err("index 7 of 3");
         assert!(e.to_string().contains("vertex 7"), "{e}");
         let nan = [Vec3::ZERO, Vec3::X, Vec3::new(f32::NAN, 0.0, 0.0)];
@@ -483,7 +483,7 @@ mod peers {
             scene::load_with("builtin:mixed", &SceneOptions::default().with_prims(5000)).unwrap();
         let p = Protocol::new(triangles(&s), CameraMode::Outside, 64);
         let dev = Device::new(1).unwrap();
-        let mesh = Mesh::new(&s.vertices, &s.indices).unwrap();
+        let mesh = EMesh::new(&s.vertices, &s.indices).unwrap();
         let (mut es, _) = EScene::build(&dev, &mesh, Quality::Low).unwrap();
         let before = p.run(&es, 1).counts;
         es.rebuild().unwrap();
@@ -638,7 +638,7 @@ mod peers {
 
         let p = Protocol::new(triangles(&s), CameraMode::Outside, res);
         let dev = Device::new(1).unwrap();
-        let mesh = Mesh::new(&s.vertices, &s.indices).unwrap();
+        let mesh = EMesh::new(&s.vertices, &s.indices).unwrap();
         for (q, row) in [Quality::Low, Quality::Medium].into_iter().zip(&rows) {
             let f = |what: &str| {
                 let mut name = prefix.clone().into_os_string();
@@ -710,7 +710,7 @@ mod peers {
             let s = scene::load(name).unwrap();
             let p =
                 pool.install(|| Protocol::new(triangles(&s), CameraMode::for_scene(name), 1024));
-            let mesh = Mesh::new(&s.vertices, &s.indices).unwrap();
+            let mesh = EMesh::new(&s.vertices, &s.indices).unwrap();
             let (es, _) = EScene::build(&dev, &mesh, Quality::Low).unwrap();
             let want = p.run(&es, threads).counts;
             drop(es);

@@ -57,7 +57,7 @@ fn morton_vectors_2_6() {
 
 #[test]
 fn emc_vectors_3_6() {
-    // Scene box [0,0,0]-[4,4,1] for positions and size (D = sqrt 33).
+    // Mesh box [0,0,0]-[4,4,1] for positions and size (D = sqrt 33).
     let scene = b([0.0; 3], [4.0, 4.0, 1.0]);
     let prims = [
         b([1.0, 1.0, 0.2], [1.2, 1.1, 0.3]),

@@ -4,14 +4,14 @@
 
 use emc_core::{Aabb, LayoutSpec};
 use emc_cpu::build::{build_scene, encoder_for, BuildOutput, Builder, PipelineOptions};
-use emc_cpu::scene::{self, builtin::HARD_NAMES, Scene, SceneOptions};
+use emc_cpu::scene::{self, builtin::HARD_NAMES, Mesh, SceneOptions};
 use emc_cpu::trace::intersect::{brute_force_closest, brute_force_occluded, Ray};
 use emc_cpu::trace::Accel;
 use emc_tests::adversarial_rays;
 use glam::Vec3;
 use rayon::prelude::*;
 
-fn load(name: &str, prims: Option<usize>) -> Scene {
+fn load(name: &str, prims: Option<usize>) -> Mesh {
     scene::load_with(
         &format!("builtin:{name}"),
         &SceneOptions::default().with_prims(prims),
@@ -19,7 +19,7 @@ fn load(name: &str, prims: Option<usize>) -> Scene {
     .unwrap_or_else(|e| panic!("builtin:{name}: {e}"))
 }
 
-fn triangles(s: &Scene) -> Vec<[Vec3; 3]> {
+fn triangles(s: &Mesh) -> Vec<[Vec3; 3]> {
     (0..s.triangle_count()).map(|i| s.triangle(i)).collect()
 }
 
@@ -58,7 +58,7 @@ fn check_monotone(label: &str, aabbs: &[Aabb], layout: &LayoutSpec) {
 }
 
 /// Validation, exact containment of every triangle vertex in its box and its leaf, finite SAH.
-fn check_tree(label: &str, s: &Scene, out: &BuildOutput) {
+fn check_tree(label: &str, s: &Mesh, out: &BuildOutput) {
     out.bvh
         .validate(&out.aabbs)
         .unwrap_or_else(|e| panic!("{label}: invalid BVH: {e}"));

@@ -270,7 +270,7 @@ fn bad_configurations_are_refused() {
     assert!(matches!(measure_all(&cfg), Err(PaperError::NoScenes)));
     let mut cfg = tiny(temp_dir("bad"));
     cfg.scenes = vec!["builtin:no-such-scene".into()];
-    assert!(matches!(measure_all(&cfg), Err(PaperError::Scene { .. })));
+    assert!(matches!(measure_all(&cfg), Err(PaperError::Mesh { .. })));
     let mut cfg = tiny(temp_dir("bad"));
     cfg.scenes = vec!["builtin:city".into(), "builtin:city".into()];
     assert!(matches!(measure_all(&cfg), Err(PaperError::Duplicate(_))));

@@ -7,7 +7,7 @@
 //! `cargo test --release -p emc-tests --test reference_layouts -- --ignored`.
 
 use emc_core::{Aabb, Channel, Frame, LayoutSpec, Normalization};
-use emc_cpu::scene::{self, Scene};
+use emc_cpu::scene::{self, Mesh};
 
 /// `(scene, emc64-var bits x/y/z/s, emc64-var pattern MSB first)`, from the reference table.
 const REFERENCE: [(&str, [u32; 4], &str); 10] = [
@@ -65,7 +65,7 @@ const REFERENCE: [(&str, [u32; 4], &str); 10] = [
 
 /// The centroid box of a scene computed the plain way (no SIMD, no parallel reduction):
 /// `(min, max)` of the exact `f64` centres of the triangle boxes.
-fn plain_centroid_box(s: &Scene) -> ([f64; 3], [f64; 3]) {
+fn plain_centroid_box(s: &Mesh) -> ([f64; 3], [f64; 3]) {
     let mut lo = [f64::INFINITY; 3];
     let mut hi = [f64::NEG_INFINITY; 3];
     for i in 0..s.triangle_count() {

@@ -1,4 +1,4 @@
-//! Scene loading and built-in scenes: the OBJ front end's errors (file and line), its
+//! Mesh loading and built-in scenes: the OBJ front end's errors (file and line), its
 //! acceptance rules, zstd round trips, the advertised properties of every `builtin:` scene,
 //! and the AVX2 triangle-box path against the scalar reference.
 
@@ -7,7 +7,7 @@ use std::path::PathBuf;
 
 use emc_core::Aabb;
 use emc_cpu::aabbs::{chunk_aabbs, triangle_aabbs_with, AabbPath};
-use emc_cpu::scene::{self, builtin, obj, Scene, SceneError, SceneOptions};
+use emc_cpu::scene::{self, builtin, obj, Mesh, SceneError, SceneOptions};
 use glam::Vec3;
 
 /// A fresh file `name` with `text` in a per-process temporary directory.
@@ -19,7 +19,7 @@ fn tmp_file(name: &str, text: &[u8]) -> PathBuf {
     p
 }
 
-fn load_text(name: &str, text: &str) -> (PathBuf, Result<Scene, SceneError>) {
+fn load_text(name: &str, text: &str) -> (PathBuf, Result<Mesh, SceneError>) {
     let p = tmp_file(name, text.as_bytes());
     let r = scene::load(p.to_str().unwrap());
     (p, r)
@@ -287,7 +287,7 @@ fn zst_round_trip_and_plain_round_trip() {
     assert!(e.to_string().contains("broken.obj.zst"));
 }
 
-fn gen(name: &str, prims: Option<usize>, seed: u64) -> Scene {
+fn gen(name: &str, prims: Option<usize>, seed: u64) -> Mesh {
     scene::load_with(
         &format!("builtin:{name}"),
         &SceneOptions::default().with_prims(prims).with_seed(seed),
@@ -295,8 +295,8 @@ fn gen(name: &str, prims: Option<usize>, seed: u64) -> Scene {
     .unwrap()
 }
 
-fn bit_eq(a: &Scene, b: &Scene) -> bool {
-    let bits = |s: &Scene| -> Vec<u32> {
+fn bit_eq(a: &Mesh, b: &Mesh) -> bool {
+    let bits = |s: &Mesh| -> Vec<u32> {
         s.vertices
             .iter()
             .flat_map(|v| v.to_array().map(f32::to_bits))
@@ -702,7 +702,7 @@ fn wave_frames_are_deterministic_and_share_their_mesh() {
     }
     assert!(named.iter().all(|&n| n));
     // The twist grows: frame 48 spans more of z than frame 0.
-    let zspan = |s: &emc_cpu::Scene| {
+    let zspan = |s: &emc_cpu::Mesh| {
         let (lo, hi) = s
             .vertices
             .iter()

@@ -9,7 +9,7 @@ use emc_core::Aabb;
 use emc_core::LayoutSpec;
 use emc_cpu::build::Builder;
 use emc_cpu::bvh::{Bvh, Node};
-use emc_cpu::scene::{self, Scene, SceneOptions};
+use emc_cpu::scene::{self, Mesh, SceneOptions};
 use emc_cpu::trace::image::{shade, Image, Shading};
 use emc_cpu::trace::intersect::{brute_force_closest, brute_force_occluded, slab_test, PreRay};
 use emc_cpu::trace::traverse::{
@@ -63,7 +63,7 @@ impl Rng {
     }
 }
 
-fn triangles(s: &Scene) -> Vec<[Vec3; 3]> {
+fn triangles(s: &Mesh) -> Vec<[Vec3; 3]> {
     (0..s.triangle_count()).map(|i| s.triangle(i)).collect()
 }
 
@@ -272,7 +272,7 @@ fn check_against_with(
     );
 }
 
-fn builtin(name: &str, prims: usize) -> Scene {
+fn builtin(name: &str, prims: usize) -> Mesh {
     scene::load_with(
         &format!("builtin:{name}"),
         &SceneOptions::default().with_prims(prims),

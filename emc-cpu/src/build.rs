@@ -23,7 +23,7 @@ use crate::bvh::karras::build_karras;
 use crate::bvh::refit::{gather_sorted, refit, CollapseParams, RadixTree};
 use crate::bvh::sweep::{sweep_tree, sweep_tree_in, SweepScratch};
 use crate::bvh::{sah_cost, sah_headline, Bvh, Node, SahConstants};
-use crate::scene::Scene;
+use crate::scene::Mesh;
 use crate::sort::{sort_with_ids, RadixKey, SortError, SortReport};
 
 /// Boxes per rayon task in the frame and encode phases.
@@ -203,7 +203,7 @@ impl PipelineOptions {
 pub enum Phase {
     /// Triangle boxes.
     Aabb,
-    /// Scene frame (parallel reduction) and codes.
+    /// Mesh frame (parallel reduction) and codes.
     Encode,
     /// Radix sort of (code, index) pairs.
     Sort,
@@ -462,7 +462,7 @@ fn serial_cpu(used: &[(f64, f64)]) -> f64 {
     (idle / (used.len() - 1) as f64).clamp(0.0, cpu)
 }
 
-/// Scene bounds of the boxes by a parallel reduction in fixed chunks.
+/// Mesh bounds of the boxes by a parallel reduction in fixed chunks.
 pub fn scene_bounds(aabbs: &[Aabb]) -> Result<SceneBounds, emc_core::Error> {
     aabbs
         .par_chunks(CHUNK)
@@ -547,13 +547,13 @@ impl BuildArena {
 }
 
 /// Build over a triangle mesh: every phase from triangle boxes on, in fresh buffers.
-pub fn build_scene(scene: &Scene, opts: &PipelineOptions) -> Result<BuildOutput, BuildError> {
+pub fn build_scene(scene: &Mesh, opts: &PipelineOptions) -> Result<BuildOutput, BuildError> {
     build_scene_in(scene, opts, &mut BuildArena::new())
 }
 
 /// [`build_scene`] in the buffers of `arena`.
 pub fn build_scene_in(
-    scene: &Scene,
+    scene: &Mesh,
     opts: &PipelineOptions,
     arena: &mut BuildArena,
 ) -> Result<BuildOutput, BuildError> {

@@ -11,7 +11,7 @@ use glam::Vec3;
 use crate::build::{build_scene, Builder, PipelineOptions};
 use crate::bvh::refit::CollapseParams;
 use crate::scene::obj::parse_obj_bytes;
-use crate::scene::Scene;
+use crate::scene::Mesh;
 use crate::trace::intersect::{brute_force_closest, brute_force_occluded, Ray};
 use crate::trace::Accel;
 
@@ -230,7 +230,7 @@ pub fn check_build_trace(data: &[u8]) {
     let indices: Vec<[u32; 3]> = (0..nt)
         .map(|_| [0; 3].map(|_: u32| u32::from(r.u8()) % nv as u32))
         .collect();
-    let scene = Scene {
+    let scene = Mesh {
         name: "fuzz".into(),
         vertices,
         indices,

@@ -30,5 +30,5 @@ pub mod trace;
 pub use auto::LayoutChoice;
 pub use build::Builder;
 pub use emc_core::LayoutSpec;
-pub use scene::Scene;
+pub use scene::Mesh;
 pub use trace::{Accel, BuildOptions, Hit, Preset, Ray, TraceError};

@@ -200,7 +200,7 @@ pub struct Sample {
     /// that finds the largest: each the boxes nearest
     /// (by centroid, Chebyshev distance) to one uniform sample triangle, all of them.
     pub windows: Vec<Points>,
-    /// Scene triangles per sample triangle: the window tree's nodes of fewer boxes than this
+    /// Mesh triangles per sample triangle: the window tree's nodes of fewer boxes than this
     /// are the deep levels the sample tree does not hold.
     pub spacing: f64,
     /// Per axis: the shift rule of [`Points::q32`] holds for every channel width 1..=32

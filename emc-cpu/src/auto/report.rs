@@ -13,7 +13,7 @@ use super::{choose, AutoChoice, LayoutChoice, AUTO};
 use crate::build::{build_aabbs, scene_bounds, Builder, PipelineOptions};
 use crate::bvh::refit::CollapseParams;
 use crate::cputime::median;
-use crate::scene::Scene;
+use crate::scene::Mesh;
 use crate::trace::api::{Accel, BuildOptions as AccelOptions, Preset};
 
 /// The targets of issue 15: auto's full-build SAH within this many percent of the best
@@ -50,7 +50,7 @@ impl PresetPair {
 /// The report of one scene.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneReport {
-    /// Scene name.
+    /// Mesh name.
     pub name: String,
     /// Triangles.
     pub prims: usize,
@@ -125,7 +125,7 @@ fn accel_opts(preset: Preset, layout: Option<LayoutChoice>) -> AccelOptions {
     }
 }
 
-fn timed_accel(scene: &Scene, opts: &AccelOptions) -> anyhow::Result<(f64, Accel)> {
+fn timed_accel(scene: &Mesh, opts: &AccelOptions) -> anyhow::Result<(f64, Accel)> {
     let t = Instant::now();
     let a = Accel::build(&scene.vertices, &scene.indices, opts)?;
     Ok((t.elapsed().as_secs_f64() * 1e3, a))
@@ -134,7 +134,7 @@ fn timed_accel(scene: &Scene, opts: &AccelOptions) -> anyhow::Result<(f64, Accel
 /// A preset with its own layout and with `auto` (`bits` code bits), `rounds` alternating
 /// fresh builds each.
 fn preset_pair(
-    scene: &Scene,
+    scene: &Mesh,
     preset: Preset,
     auto: LayoutChoice,
     rounds: usize,
@@ -169,7 +169,7 @@ fn preset_pair(
 }
 
 /// Measure one scene on the current rayon pool.
-pub fn measure(scene: &Scene, opts: &ReportOptions) -> anyhow::Result<SceneReport> {
+pub fn measure(scene: &Mesh, opts: &ReportOptions) -> anyhow::Result<SceneReport> {
     let rounds = opts.rounds.max(1);
     let threads = rayon::current_num_threads();
     let boxes = scene.aabbs();

@@ -63,7 +63,7 @@ struct Series {
 
 /// Run `repeat` builds with `opts` (fresh buffers each when `cold`, else the previous build's).
 fn series(
-    scene: &crate::scene::Scene,
+    scene: &crate::scene::Mesh,
     opts: &PipelineOptions,
     repeat: usize,
     cold: bool,

@@ -15,7 +15,7 @@ use crate::bvh::refit::CollapseParams;
 use crate::bvh::sweep::sweep_tree;
 use crate::bvh::{sah_cost, sah_headline, Bvh, SahConstants};
 use crate::cputime::median;
-use crate::scene::Scene;
+use crate::scene::Mesh;
 use crate::trace::workload::{all_ao_rays, trace_closest, trace_occluded, Camera, SceneFrame};
 use crate::trace::{Hit, NodeTest, Ray, TraceStats, WideBvh};
 
@@ -140,7 +140,7 @@ pub enum MeasureError {
 
 /// Build `builder` over `scene` with `variant` on a pool of `pool`'s threads.
 pub fn build(
-    scene: &Scene,
+    scene: &Mesh,
     builder: PaperBuilder,
     variant: &Variant,
     pool: &rayon::ThreadPool,
@@ -183,7 +183,7 @@ pub fn build(
 /// treelet restructuring and the SAH collapse). The sweep's headline SAH is taken inside the
 /// timed section, as the pipeline does for `lbvh`.
 fn build_cube(
-    scene: &Scene,
+    scene: &Mesh,
     builder: PaperBuilder,
     spec: LayoutSpec,
     pool: &rayon::ThreadPool,
@@ -303,7 +303,7 @@ fn mrays(rays: u64, ms: f64) -> f64 {
 pub struct Workload {
     /// The triangles, id order.
     pub tris: Vec<[Vec3; 3]>,
-    /// Scene frame (bounds, diagonal).
+    /// Mesh frame (bounds, diagonal).
     pub frame: SceneFrame,
     /// Primary rays, tile order.
     pub primary: Vec<Ray>,
@@ -313,7 +313,7 @@ pub struct Workload {
 
 impl Workload {
     /// The protocol workload of `scene` at `res × res`.
-    pub fn new(scene: &Scene, res: u32) -> Workload {
+    pub fn new(scene: &Mesh, res: u32) -> Workload {
         let tris: Vec<[Vec3; 3]> = (0..scene.triangle_count())
             .map(|i| scene.triangle(i))
             .collect();

@@ -15,7 +15,7 @@ use std::path::{Path, PathBuf};
 use emc_core::LayoutSpec;
 use indicatif::{ProgressBar, ProgressDrawTarget, ProgressStyle};
 
-use crate::scene::{load_with, Scene, SceneOptions};
+use crate::scene::{load_with, Mesh, SceneOptions};
 use crate::trace::image::{shade, Shading};
 use measure::{all_variants, build, trace, MeasureError, PaperBuilder, Variant, Workload};
 
@@ -39,7 +39,7 @@ pub const QUICK_RAYS: usize = 256 * 256;
 /// What `emc paper` runs.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PaperConfig {
-    /// Scene specs (`builtin:NAME`, OBJ paths, shared scene names).
+    /// Mesh specs (`builtin:NAME`, OBJ paths, shared scene names).
     pub scenes: Vec<String>,
     /// Output folder.
     pub out: PathBuf,
@@ -99,7 +99,7 @@ pub enum PaperError {
     Duplicate(String),
     /// A scene failed to load.
     #[error("loading {spec}: {source}")]
-    Scene {
+    Mesh {
         /// The spec given.
         spec: String,
         /// Why.
@@ -108,7 +108,7 @@ pub enum PaperError {
     /// A build or trace failed.
     #[error("{scene}, {builder} {layout}: {source}")]
     Measure {
-        /// Scene name.
+        /// Mesh name.
         scene: String,
         /// Builder name.
         builder: &'static str,
@@ -139,7 +139,7 @@ pub enum PaperError {
     /// The bit-budget sweep failed.
     #[error("{scene}, bit-budget sweep: {source}")]
     Sweep {
-        /// Scene name.
+        /// Mesh name.
         scene: String,
         /// Why.
         source: sweep::SweepError,
@@ -202,7 +202,7 @@ impl Run {
 /// All runs of one scene.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SceneResult {
-    /// Scene name.
+    /// Mesh name.
     pub name: String,
     /// File-name stem of its outputs.
     pub stem: String,
@@ -261,13 +261,13 @@ pub fn stem_of(name: &str) -> String {
         .collect()
 }
 
-fn load_scenes(cfg: &PaperConfig) -> Result<Vec<Scene>, PaperError> {
+fn load_scenes(cfg: &PaperConfig) -> Result<Vec<Mesh>, PaperError> {
     let opts = SceneOptions::default()
         .with_prims(cfg.prims)
         .with_seed(cfg.seed);
-    let mut out: Vec<Scene> = Vec::new();
+    let mut out: Vec<Mesh> = Vec::new();
     for spec in &cfg.scenes {
-        let s = load_with(spec, &opts).map_err(|source| PaperError::Scene {
+        let s = load_with(spec, &opts).map_err(|source| PaperError::Mesh {
             spec: spec.clone(),
             source,
         })?;

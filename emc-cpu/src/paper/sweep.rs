@@ -12,7 +12,7 @@ use super::measure::{trace, MeasureError, Workload};
 use crate::auto::{choose, AutoError};
 use crate::build::{build_scene, scene_bounds, Builder, Phase, PipelineOptions};
 use crate::bvh::refit::CollapseParams;
-use crate::scene::Scene;
+use crate::scene::Mesh;
 
 /// The code lengths of the sweep.
 pub const SWEEP_BITS: [u32; 6] = [24, 32, 40, 48, 56, 64];
@@ -76,7 +76,7 @@ pub fn sweep_layouts(
 /// else running), then each length's build and trace on `pool`; `step(bits, label)` is
 /// called once per length as it is done (the progress bar).
 pub fn measure_sweep(
-    scene: &Scene,
+    scene: &Mesh,
     work: &Workload,
     repeats: usize,
     pool: &rayon::ThreadPool,

@@ -8,7 +8,7 @@ use std::path::PathBuf;
 
 use glam::Vec3;
 
-use super::{Scene, SceneError, SceneOptions};
+use super::{Mesh, SceneError, SceneOptions};
 
 /// Seed used when none is given.
 pub const DEFAULT_SEED: u64 = 0x5EED_E3C0_2017;
@@ -80,7 +80,7 @@ pub const CITY_MAX_HEIGHT: f32 = 200.0;
 ///   (default 2^21 + 3);
 /// - `hard-elongated`: `uniform` stretched to 10^5 × 1 × 1;
 /// - `hard-nonfinite`: a `uniform` mesh in which about 1% of the vertices are NaN or ±inf; like
-///   a loaded file, those triangles are dropped and counted in [`Scene::dropped_nonfinite`]
+///   a loaded file, those triangles are dropped and counted in [`Mesh::dropped_nonfinite`]
 ///   (the count is of the remaining triangles);
 /// - `hard-duplicates`: every triangle identical (0,0,0), (1,0,0), (0,1,0).
 ///
@@ -92,7 +92,7 @@ pub const CITY_MAX_HEIGHT: f32 = 200.0;
 ///   the seed is not used.
 ///
 /// `prims = Some(0)` is an error.
-pub fn generate(name: &str, opts: &SceneOptions) -> Result<Scene, SceneError> {
+pub fn generate(name: &str, opts: &SceneOptions) -> Result<Mesh, SceneError> {
     if opts.prims == Some(0) {
         return Err(SceneError::ZeroPrims(name.to_string()));
     }
@@ -115,7 +115,7 @@ pub fn generate(name: &str, opts: &SceneOptions) -> Result<Scene, SceneError> {
         }
         "wave" => {
             let side = wave_side(n);
-            return Ok(Scene {
+            return Ok(Mesh {
                 name: "builtin:wave".to_string(),
                 vertices: wave_vertices(side, opts.frame),
                 indices: wave_indices(side),
@@ -172,7 +172,7 @@ pub fn wave_vertices(side: usize, frame: u32) -> Vec<Vec3> {
 }
 
 /// The hard-case generators (see [`generate`]).
-fn hard(kind: &str, name: &str, opts: &SceneOptions) -> Result<Scene, SceneError> {
+fn hard(kind: &str, name: &str, opts: &SceneOptions) -> Result<Mesh, SceneError> {
     let default = match kind {
         "one-big" => 1_000_001,
         "same-cell" => (1 << 21) + 3,
@@ -421,8 +421,8 @@ impl Soup {
         self.tri(a, c, d);
     }
 
-    fn into_scene(self, name: String) -> Scene {
-        Scene {
+    fn into_scene(self, name: String) -> Mesh {
+        Mesh {
             name,
             vertices: self.vertices,
             indices: self.indices,
@@ -623,7 +623,7 @@ fn mixed(s: &mut Soup, n: usize, rng: &mut Pcg32) {
 /// A closed icosphere of radius `r` at the origin: the icosahedron subdivided `level` times
 /// (`20·4^level` triangles), shared vertices (watertight: every edge in exactly two
 /// triangles), counter-clockwise seen from outside.
-pub fn icosphere(level: u32, r: f32) -> Scene {
+pub fn icosphere(level: u32, r: f32) -> Mesh {
     let t = (1.0 + 5.0f64.sqrt()) / 2.0;
     let base: [[f64; 3]; 12] = [
         [-1.0, t, 0.0],
@@ -687,7 +687,7 @@ pub fn icosphere(level: u32, r: f32) -> Scene {
         tris = next;
     }
     let r = r as f64;
-    Scene {
+    Mesh {
         name: "builtin:sphere".to_string(),
         vertices: pts
             .iter()

@@ -1,5 +1,5 @@
 //! Scenes: the triangle soups that every builder, encoder and tracer of emc-cpu consumes.
-//! A [`Scene`] comes from an OBJ file (the `obj` module, feature `obj`), a zstd-compressed
+//! A [`Mesh`] comes from an OBJ file (the `obj` module, feature `obj`), a zstd-compressed
 //! OBJ, a shared scene named by its stem, or a deterministic procedural generator
 //! ([`builtin`], always there); [`load`] picks by the spec.
 #![forbid(unsafe_code)]
@@ -131,7 +131,7 @@ pub enum SceneError {
 /// Invariants after [`load`]: at least one triangle, every index `< vertices.len()`, every
 /// vertex used by a triangle is finite.
 #[derive(Clone, Debug, Default, PartialEq)]
-pub struct Scene {
+pub struct Mesh {
     /// A short name: the file stem or `builtin:NAME`.
     pub name: String,
     /// Vertex positions.
@@ -142,7 +142,7 @@ pub struct Scene {
     pub dropped_nonfinite: usize,
 }
 
-impl Scene {
+impl Mesh {
     /// Number of triangles.
     #[inline]
     pub fn triangle_count(&self) -> usize {
@@ -249,7 +249,7 @@ impl SceneOptions {
 }
 
 /// Load a scene with default options. See [`load_with`] for the spec syntax.
-pub fn load(spec: &str) -> Result<Scene, SceneError> {
+pub fn load(spec: &str) -> Result<Mesh, SceneError> {
     load_with(spec, &SceneOptions::default())
 }
 
@@ -261,13 +261,13 @@ pub fn load(spec: &str) -> Result<Scene, SceneError> {
 /// - a path to an `.obj` or `.obj.zst` file (if the file exists, or the spec ends in one of
 ///   those extensions);
 /// - a bare shared-scene name such as `pbrt-bathroom`, looked up by [`shared_scene_path`].
-pub fn load_with(spec: &str, opts: &SceneOptions) -> Result<Scene, SceneError> {
+pub fn load_with(spec: &str, opts: &SceneOptions) -> Result<Mesh, SceneError> {
     #[cfg(feature = "obj")]
-    fn load_file(path: &Path) -> Result<Scene, SceneError> {
+    fn load_file(path: &Path) -> Result<Mesh, SceneError> {
         obj::load_obj_file(path)
     }
     #[cfg(not(feature = "obj"))]
-    fn load_file(path: &Path) -> Result<Scene, SceneError> {
+    fn load_file(path: &Path) -> Result<Mesh, SceneError> {
         Err(SceneError::NoObjSupport {
             path: path.to_path_buf(),
         })

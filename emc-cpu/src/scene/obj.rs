@@ -8,13 +8,13 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-use super::{Scene, SceneError};
+use super::{Mesh, SceneError};
 
 /// zstd window limit of the decoder: 2^27 bytes = 128 MiB (the largest shared scene uses it).
 const ZSTD_WINDOW_LOG_MAX: u32 = 27;
 
 /// Load an `.obj` or `.obj.zst` file (by extension). See [`parse_obj_bytes`] for the rules.
-pub fn load_obj_file(path: &Path) -> Result<Scene, SceneError> {
+pub fn load_obj_file(path: &Path) -> Result<Mesh, SceneError> {
     let bytes = read_file(path)?;
     let name = scene_name(path);
     parse_obj_bytes(&bytes, path, name)
@@ -57,19 +57,19 @@ pub fn read_file(path: &Path) -> Result<Vec<u8>, SceneError> {
     Ok(bytes)
 }
 
-/// Parse OBJ text into a [`Scene`] named `name`; `path` only names the source in errors.
+/// Parse OBJ text into a [`Mesh`] named `name`; `path` only names the source in errors.
 ///
 /// Rules: faces with more than three vertices are fan-triangulated by `tobj`; only positions
 /// are kept; `mtllib` is ignored; points and lines are ignored (but must be well-formed). A
 /// malformed `v`/`vt`/`vn`/`f`/`l` line, an index of 0, an index (absolute or negative
 /// relative) that does not name an already defined element, a face with fewer than three
 /// vertices, or invalid UTF-8 is a [`SceneError::Malformed`] naming the line. Triangles with
-/// a NaN or infinite vertex are dropped and counted in [`Scene::dropped_nonfinite`]; an error
+/// a NaN or infinite vertex are dropped and counted in [`Mesh::dropped_nonfinite`]; an error
 /// only when none remain. Zero-area triangles are kept.
 ///
 /// The line check runs on a second rayon worker while `tobj` parses, so on two or more idle
 /// cores it costs no wall time.
-pub fn parse_obj_bytes(bytes: &[u8], path: &Path, name: String) -> Result<Scene, SceneError> {
+pub fn parse_obj_bytes(bytes: &[u8], path: &Path, name: String) -> Result<Mesh, SceneError> {
     let (checked, parsed) = rayon::join(
         || check_lines(bytes).map_err(|(line, message)| malformed(path, line, message)),
         || {
@@ -101,7 +101,7 @@ fn malformed(path: &Path, line: usize, message: String) -> SceneError {
 }
 
 /// Concatenate `tobj`'s models into one mesh and drop triangles with non-finite vertices.
-fn assemble(models: Vec<tobj::Model>, path: &Path, name: String) -> Result<Scene, SceneError> {
+fn assemble(models: Vec<tobj::Model>, path: &Path, name: String) -> Result<Mesh, SceneError> {
     let nv: usize = models.iter().map(|m| m.mesh.positions.len() / 3).sum();
     let nt: usize = models.iter().map(|m| m.mesh.indices.len() / 3).sum();
     if nv > u32::MAX as usize {
@@ -140,7 +140,7 @@ fn assemble(models: Vec<tobj::Model>, path: &Path, name: String) -> Result<Scene
             SceneError::NoTriangles { path }
         });
     }
-    Ok(Scene {
+    Ok(Mesh {
         name,
         vertices,
         indices,
@@ -152,7 +152,7 @@ fn assemble(models: Vec<tobj::Model>, path: &Path, name: String) -> Result<Scene
 /// `.zst`, with a 128 MiB window like the largest shared scene). Coordinates are printed in
 /// the shortest form that reads back to the same `f32`, so [`load_obj_file`] returns the same
 /// triangles (vertices may be renumbered in order of first use).
-pub fn save_obj(scene: &Scene, path: &Path) -> Result<(), SceneError> {
+pub fn save_obj(scene: &Mesh, path: &Path) -> Result<(), SceneError> {
     use std::io::Write;
     let io = |e| SceneError::Write {
         path: path.to_path_buf(),
