@@ -31,4 +31,4 @@ pub use auto::LayoutChoice;
 pub use build::Builder;
 pub use emc_core::LayoutSpec;
 pub use scene::Mesh;
-pub use trace::{Accel, BuildOptions, Hit, Preset, Ray, TraceError};
+pub use trace::{Accel, BuildOptions, CustomHit, GeomId, Hit, Preset, Ray, Scene, TraceError};

@@ -836,12 +836,12 @@ fn intersect_raw(raw: sys::RTCScene, ray: &Ray, ctx: &mut sys::RTCIntersectConte
     // SAFETY: callers pass a committed, live scene; `ctx` and `rh` are valid, aligned,
     // writable structs of the C layout, borrowed for the call only.
     unsafe { sys::rtcIntersect1(raw, ctx, &mut rh) };
-    (rh.hit.geom_id != sys::RTC_INVALID_GEOMETRY_ID).then_some(Hit {
-        t: rh.ray.tfar,
-        prim: rh.hit.prim_id,
-        u: rh.hit.u,
-        v: rh.hit.v,
-    })
+    (rh.hit.geom_id != sys::RTC_INVALID_GEOMETRY_ID).then_some(Hit::triangle(
+        rh.ray.tfar,
+        rh.hit.prim_id,
+        rh.hit.u,
+        rh.hit.v,
+    ))
 }
 
 /// The harness's ray: origin, direction, the interval, time 0, mask all ones, id 0, flags 0.

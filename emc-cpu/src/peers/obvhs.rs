@@ -211,11 +211,9 @@ impl Bvh {
         let tris = &self.ordered;
         self.bvh
             .ray_traverse(Self::ray(r), &mut hit, |ray, id| tris[id].intersect(ray))
-            .then(|| Hit {
-                t: hit.t,
-                prim: self.bvh.primitive_indices[hit.primitive_id as usize],
-                u: 0.0,
-                v: 0.0,
+            .then(|| {
+                let prim = self.bvh.primitive_indices[hit.primitive_id as usize];
+                Hit::triangle(hit.t, prim, 0.0, 0.0)
             })
     }
 

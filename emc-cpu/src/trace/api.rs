@@ -46,7 +46,7 @@ use crate::bvh::Bvh;
 use crate::trace::intersect::{Hit, Ray};
 use crate::trace::refit::RefitPlan;
 use crate::trace::traverse::{closest, occluded, NodeTest, TraceStats};
-use crate::trace::wide::{WideBvh, WIDTH, WIDTH8};
+use crate::trace::wide::{WideBvh, WideNodeN, WIDTH, WIDTH8};
 use crate::trace::wide_lbvh::{build_fast, FastScratch, FastTimes};
 use crate::trace::TraceError;
 
@@ -478,6 +478,22 @@ impl Accel {
             .iter()
             .map(|t| t.map(|i| self.vertices[i as usize]))
             .collect()
+    }
+
+    /// A box around every triangle: the union of the root's children's boxes (which the
+    /// builders pad a little for rounding).
+    pub fn bounds(&self) -> Aabb {
+        fn root<const W: usize>(n: &WideNodeN<W>) -> Aabb {
+            (0..W)
+                .map(|lane| n.child_box(lane))
+                .filter(Aabb::is_valid)
+                .fold(Aabb::EMPTY, |a, b| a.union(&b))
+        }
+        match (self.bvh.nodes8.first(), self.bvh.nodes.first()) {
+            (Some(n), _) => root(n),
+            (None, Some(n)) => root(n),
+            (None, None) => Aabb::EMPTY,
+        }
     }
 
     /// The wide BVH being traced.

@@ -5,8 +5,10 @@
 
 use glam::Vec3;
 
-/// A ray: origin, direction (need not be normalized, must be finite and non-zero) and the
-/// closed parameter interval `[tnear, tfar]` in which hits count.
+/// A ray: origin, direction (need not be normalized, must be finite and non-zero), the
+/// closed parameter interval `[tnear, tfar]` in which hits count, and a mask: a geometry of a
+/// [`crate::trace::Scene`] is seen only when its mask and the ray's share a bit (an
+/// [`crate::trace::Accel`] ignores the mask).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Ray {
     /// Origin.
@@ -17,10 +19,15 @@ pub struct Ray {
     pub tnear: f32,
     /// Largest accepted hit distance; `f32::INFINITY` for an unbounded ray.
     pub tfar: f32,
+    /// Geometry mask ([`Ray::ALL`] by default: every geometry is seen).
+    pub mask: u32,
 }
 
 impl Ray {
-    /// A ray over `[0, +inf]`.
+    /// The mask that sees every geometry.
+    pub const ALL: u32 = u32::MAX;
+
+    /// A ray over `[0, +inf]` that sees every geometry.
     #[inline]
     pub fn new(origin: Vec3, dir: Vec3) -> Ray {
         Ray {
@@ -28,10 +35,17 @@ impl Ray {
             dir,
             tnear: 0.0,
             tfar: f32::INFINITY,
+            mask: Ray::ALL,
         }
     }
 
-    /// A ray over `[tnear, tfar]`.
+    /// The same ray with mask `mask`.
+    #[inline]
+    pub fn with_mask(self, mask: u32) -> Ray {
+        Ray { mask, ..self }
+    }
+
+    /// A ray over `[tnear, tfar]` that sees every geometry.
     #[inline]
     pub fn segment(origin: Vec3, dir: Vec3, tnear: f32, tfar: f32) -> Ray {
         Ray {
@@ -39,6 +53,7 @@ impl Ray {
             dir,
             tnear,
             tfar,
+            mask: Ray::ALL,
         }
     }
 
@@ -59,12 +74,35 @@ impl Ray {
 pub struct Hit {
     /// Hit distance along the ray (in units of `dir`).
     pub t: f32,
-    /// Triangle id (index into the triangle list the BVH was built over).
+    /// Primitive id: the triangle's index in its mesh, or the custom primitive's index.
     pub prim: u32,
-    /// Barycentric weight of vertex 1.
+    /// Barycentric weight of vertex 1 (for a custom primitive, what its callback returned).
     pub u: f32,
-    /// Barycentric weight of vertex 2.
+    /// Barycentric weight of vertex 2 (likewise).
     pub v: f32,
+    /// Geometry id in the scene that holds the primitive (0 for an [`crate::trace::Accel`]).
+    pub geom: u32,
+    /// Id of the instance (a geometry of the top-level scene) the hit was found through, or
+    /// [`Hit::NO_INSTANCE`].
+    pub instance: u32,
+}
+
+impl Hit {
+    /// [`Hit::instance`] of a hit found without an instance.
+    pub const NO_INSTANCE: u32 = u32::MAX;
+
+    /// A hit of triangle (or primitive) `prim` of geometry 0, not through an instance.
+    #[inline(always)]
+    pub fn triangle(t: f32, prim: u32, u: f32, v: f32) -> Hit {
+        Hit {
+            t,
+            prim,
+            u,
+            v,
+            geom: 0,
+            instance: Hit::NO_INSTANCE,
+        }
+    }
 }
 
 /// `γ(3) = 3u / (1 − 3u)` with `u = 2^-24`, the error bound of three rounded operations.
@@ -263,7 +301,7 @@ pub fn brute_force_closest(ray: &Ray, tris: &[[Vec3; 3]]) -> Option<Hit> {
         if let Some((t, u, w)) = triangle_test(&r, &v, tmax) {
             let prim = i as u32;
             if best.is_none_or(|h| better(t, prim, h.t, h.prim)) {
-                best = Some(Hit { t, prim, u, v: w });
+                best = Some(Hit::triangle(t, prim, u, w));
             }
         }
     }

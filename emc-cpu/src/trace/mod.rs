@@ -8,6 +8,7 @@ pub mod cover;
 pub mod image;
 pub mod intersect;
 pub mod refit;
+pub mod scene;
 pub mod traverse;
 pub mod wide;
 pub mod wide_lbvh;
@@ -15,6 +16,7 @@ pub mod workload;
 
 pub use api::{Accel, BuildOptions, Preset};
 pub use intersect::{Hit, Ray};
+pub use scene::{CustomHit, GeomId, Intersector, Scene};
 pub use traverse::{NodeTest, TraceStats};
 pub use wide::WideBvh;
 
@@ -75,6 +77,37 @@ pub enum TraceError {
     /// The treelet restructuring refused its input.
     #[error("treelet restructuring failed: {0}")]
     Restructure(#[source] crate::bvh::atrbvh::AtrError),
+    /// A [`Scene`] has no geometry of this id.
+    #[error("the scene has no geometry {0}")]
+    NoGeometry(u32),
+    /// A [`Scene`] edit named a geometry of another kind.
+    #[error("geometry {id} is not {expected}")]
+    WrongGeometry {
+        /// The geometry named.
+        id: u32,
+        /// The kind the edit needs.
+        expected: &'static str,
+    },
+    /// An instance transform is singular or not finite (or maps the scene's box out of range).
+    #[error("the instance transform is not invertible (or not finite)")]
+    NotInvertible,
+    /// An instanced scene holds instances itself (one level of instancing is supported).
+    #[error("an instanced scene must not hold instances (one level of instancing)")]
+    NestedInstance,
+    /// An instanced scene has no geometry.
+    #[error("an instanced scene must hold at least one geometry")]
+    EmptyScene,
+    /// A custom primitive's box has a non-finite corner or `min > max`.
+    #[error("custom primitive {0} has a non-finite or inverted box")]
+    BadBox(usize),
+    /// [`Scene::set_custom_boxes`] got a different number of boxes than the geometry has.
+    #[error("got {given} boxes, but the custom geometry has {expected} primitives")]
+    BoxCount {
+        /// Boxes given.
+        given: usize,
+        /// Primitives of the geometry.
+        expected: usize,
+    },
     /// [`Accel::rebuild`] got a different number of vertices than the build.
     #[error("rebuild got {given} vertices, but the mesh was built with {expected}")]
     VertexCount {

@@ -702,7 +702,17 @@ unsafe fn closest_avx2<const STATS: bool>(
     closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, r, &l, stats)
 }
 
-/// The closest-hit loop over one tree (`nodes`: the tree of width `W` in `bvh`).
+/// The best hit so far of a closest-hit traversal (the [`Hit`] without the ids a
+/// [`crate::trace::Scene`] adds).
+#[derive(Clone, Copy)]
+struct Best {
+    t: f32,
+    prim: u32,
+    u: f32,
+    v: f32,
+}
+
+/// The closest-hit loop over one triangle tree (`nodes`: the tree of width `W` in `bvh`).
 #[inline(always)]
 fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     bvh: &WideBvh,
@@ -711,14 +721,120 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     lanes: &L,
     stats: &mut TraceStats,
 ) -> Option<Hit> {
-    let abs = abs_slack(bvh, r);
-    let mut best = Hit {
+    let mut best = Best {
         t: r.tfar,
         prim: u32::MAX,
         u: 0.0,
         v: 0.0,
     };
     let mut found = false;
+    closest_walk::<W, STATS, L>(bvh, nodes, r, lanes, stats, |code, stats| {
+        let mut pi = (code & !LEAF) as usize;
+        loop {
+            let p = &bvh.packets[pi];
+            if STATS {
+                stats.tri_tests += p.count as u64;
+            }
+            lanes.packet(r, p, best.t, |t, u, v, prim| {
+                if !found || better(t, prim, best.t, best.prim) {
+                    best = Best { t, prim, u, v };
+                    found = true;
+                }
+            });
+            if p.last != 0 {
+                break;
+            }
+            pi += 1;
+        }
+        best.t
+    });
+    found.then_some(Hit::triangle(best.t, best.prim, best.u, best.v))
+}
+
+/// The ids of the items of box-tree leaf `code` (see [`closest_items`]), in lane order.
+#[inline(always)]
+fn leaf_items(bvh: &WideBvh, code: u32, mut f: impl FnMut(u32)) {
+    let mut pi = (code & !LEAF) as usize;
+    loop {
+        let p = &bvh.packets[pi];
+        for &id in &p.id[..p.count as usize] {
+            f(id);
+        }
+        if p.last != 0 {
+            return;
+        }
+        pi += 1;
+    }
+}
+
+/// The closest-hit walk over a tree of items' boxes (a [`WideBvh`] built over one degenerate
+/// triangle per item whose box is the item's: see `trace::scene`), in the same order and with
+/// the same culling as a triangle tree: `visit(id, best)` tests item `id` against the ray up to
+/// the best distance so far and returns the new best distance (`best` when nothing closer).
+/// The ray must be valid.
+#[inline]
+pub(crate) fn closest_items(
+    bvh: &WideBvh,
+    r: &PreRay,
+    kind: NodeTest,
+    mut visit: impl FnMut(u32, f32) -> f32,
+) {
+    if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
+        return;
+    }
+    let mut best = r.tfar;
+    let mut leaf = |code: u32, _: &mut TraceStats| {
+        leaf_items(bvh, code, |id| best = visit(id, best));
+        best
+    };
+    let stats = &mut TraceStats::default();
+    let (eight, kind) = tree_of(bvh, kind);
+    #[cfg(target_arch = "x86_64")]
+    if eight && kind == NodeTest::Avx2 && avx2_available() {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        return unsafe { closest_items_avx2(bvh, r, stats, &mut leaf) };
+    }
+    #[cfg(target_arch = "x86_64")]
+    if !eight && matches!(kind, NodeTest::Simd | NodeTest::Avx2) {
+        let l = SseLanes(sse::SseRay::new(r));
+        return closest_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &l, stats, leaf);
+    }
+    if eight {
+        closest_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &ScalarLanes, stats, leaf)
+    } else {
+        closest_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &ScalarLanes, stats, leaf)
+    }
+}
+
+/// [`closest_items`] on the 8-wide tree with the AVX2 node test.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn closest_items_avx2(
+    bvh: &WideBvh,
+    r: &PreRay,
+    stats: &mut TraceStats,
+    leaf: &mut impl FnMut(u32, &mut TraceStats) -> f32,
+) {
+    let l = AvxLanes(avx::AvxRay::new(r), sse::SseRay::new(r));
+    closest_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &l, stats, leaf)
+}
+
+/// The closest-hit walk over one tree: children nearest first, a node skipped when its entry
+/// distance exceeds the slackened best distance; `leaf(code, stats)` tests leaf `code` and
+/// returns the best distance so far.
+#[inline(always)]
+fn closest_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
+    bvh: &WideBvh,
+    nodes: &[WideNodeN<W>],
+    r: &PreRay,
+    lanes: &L,
+    stats: &mut TraceStats,
+    mut leaf: impl FnMut(u32, &mut TraceStats) -> f32,
+) {
+    let abs = abs_slack(bvh, r);
     let mut cull = slack(r.tfar, abs);
     let mut stack = Stack::new();
     let mut next = Some((0, r.tnear));
@@ -726,28 +842,8 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
         if d > cull {
             continue;
         }
-        let leaf = |code: u32, best: &mut Hit, found: &mut bool, stats: &mut TraceStats| {
-            let mut pi = (code & !LEAF) as usize;
-            loop {
-                let p = &bvh.packets[pi];
-                if STATS {
-                    stats.tri_tests += p.count as u64;
-                }
-                lanes.packet(r, p, best.t, |t, u, v, prim| {
-                    if !*found || better(t, prim, best.t, best.prim) {
-                        *best = Hit { t, prim, u, v };
-                        *found = true;
-                    }
-                });
-                if p.last != 0 {
-                    break;
-                }
-                pi += 1;
-            }
-            slack(best.t, abs)
-        };
         if code & LEAF != 0 {
-            cull = leaf(code, &mut best, &mut found, stats);
+            cull = slack(leaf(code, stats), abs);
         } else {
             let node = &nodes[code as usize];
             if STATS {
@@ -775,7 +871,7 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
                 if leaves & (leaves - 1) == 0 {
                     // One leaf: entered within `cull`, so tested.
                     let lane = leaves.trailing_zeros() as usize;
-                    cull = leaf(node.child[lane], &mut best, &mut found, stats);
+                    cull = slack(leaf(node.child[lane], stats), abs);
                 } else {
                     let mut order = [(0u32, 0.0f32); W];
                     let mut n = 0;
@@ -795,7 +891,7 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
                         if d > cull {
                             break;
                         }
-                        cull = leaf(child, &mut best, &mut found, stats);
+                        cull = slack(leaf(child, stats), abs);
                     }
                 }
                 let mut m = inner;
@@ -810,7 +906,6 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
             next = push_ordered(&mut stack, node, (inner, dist));
         }
     }
-    found.then_some(best)
 }
 
 /// Brute force over triangle packets (no tree): the closest hit of `ray` among every
@@ -832,7 +927,7 @@ pub fn brute_force_packets(ray: &Ray, packets: &[TriPacket]) -> Option<Hit> {
 
 /// [`brute_force_packets`] with one tester.
 fn brute_force_in<L: Lanes<WIDTH>>(r: &PreRay, packets: &[TriPacket], lanes: &L) -> Option<Hit> {
-    let mut best = Hit {
+    let mut best = Best {
         t: r.tfar,
         prim: u32::MAX,
         u: 0.0,
@@ -842,12 +937,12 @@ fn brute_force_in<L: Lanes<WIDTH>>(r: &PreRay, packets: &[TriPacket], lanes: &L)
     for p in packets {
         lanes.packet(r, p, best.t, |t, u, v, prim| {
             if !found || better(t, prim, best.t, best.prim) {
-                best = Hit { t, prim, u, v };
+                best = Best { t, prim, u, v };
                 found = true;
             }
         });
     }
-    found.then_some(best)
+    found.then_some(Hit::triangle(best.t, best.prim, best.u, best.v))
 }
 
 /// True when `ray` hits any triangle in `[tnear, tfar]` (false for an invalid ray).
@@ -898,7 +993,7 @@ unsafe fn occluded_avx2<const STATS: bool>(
     occluded_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, r, &l, stats)
 }
 
-/// The any-hit loop over one tree.
+/// The any-hit loop over one triangle tree.
 #[inline(always)]
 fn occluded_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     bvh: &WideBvh,
@@ -907,13 +1002,81 @@ fn occluded_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     lanes: &L,
     stats: &mut TraceStats,
 ) -> bool {
+    occluded_walk::<W, STATS, L>(bvh, nodes, r, lanes, stats, |code, stats| {
+        leaf_occludes::<STATS, W, L>(bvh, code, r, lanes, stats)
+    })
+}
+
+/// True when `visit(id)` is true for an item of the box tree `bvh` whose box the ray enters
+/// (see [`closest_items`]); the ray must be valid.
+#[inline]
+pub(crate) fn occluded_items(
+    bvh: &WideBvh,
+    r: &PreRay,
+    kind: NodeTest,
+    mut visit: impl FnMut(u32) -> bool,
+) -> bool {
+    if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
+        return false;
+    }
+    let mut leaf = |code: u32, _: &mut TraceStats| {
+        let mut hit = false;
+        leaf_items(bvh, code, |id| hit = hit || visit(id));
+        hit
+    };
+    let stats = &mut TraceStats::default();
+    let (eight, kind) = tree_of(bvh, kind);
+    #[cfg(target_arch = "x86_64")]
+    if eight && kind == NodeTest::Avx2 && avx2_available() {
+        // SAFETY: the CPU has AVX2 (checked just above).
+        return unsafe { occluded_items_avx2(bvh, r, stats, &mut leaf) };
+    }
+    #[cfg(target_arch = "x86_64")]
+    if !eight && matches!(kind, NodeTest::Simd | NodeTest::Avx2) {
+        let l = SseLanes(sse::SseRay::new(r));
+        return occluded_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &l, stats, leaf);
+    }
+    if eight {
+        occluded_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &ScalarLanes, stats, leaf)
+    } else {
+        occluded_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &ScalarLanes, stats, leaf)
+    }
+}
+
+/// [`occluded_items`] on the 8-wide tree with the AVX2 node test.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn occluded_items_avx2(
+    bvh: &WideBvh,
+    r: &PreRay,
+    stats: &mut TraceStats,
+    leaf: &mut impl FnMut(u32, &mut TraceStats) -> bool,
+) -> bool {
+    let l = AvxLanes(avx::AvxRay::new(r), sse::SseRay::new(r));
+    occluded_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &l, stats, leaf)
+}
+
+/// The any-hit walk over one tree: `leaf(code, stats)` is true when leaf `code` holds a hit,
+/// which ends the walk.
+#[inline(always)]
+fn occluded_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
+    bvh: &WideBvh,
+    nodes: &[WideNodeN<W>],
+    r: &PreRay,
+    lanes: &L,
+    stats: &mut TraceStats,
+    mut leaf: impl FnMut(u32, &mut TraceStats) -> bool,
+) -> bool {
     let abs = abs_slack(bvh, r);
     let cull = slack(r.tfar, abs);
     let mut stack = Stack::new();
     stack.push((0, r.tnear));
     while let Some((code, _)) = stack.pop() {
         if code & LEAF != 0 {
-            if leaf_occludes::<STATS, W, L>(bvh, code, r, lanes, stats) {
+            if leaf(code, stats) {
                 return true;
             }
         } else {
@@ -945,7 +1108,7 @@ fn occluded_in<const W: usize, const STATS: bool, L: Lanes<W>>(
                 m &= m - 1;
                 let child = node.child[lane];
                 if child & LEAF != 0 {
-                    if leaf_occludes::<STATS, W, L>(bvh, child, r, lanes, stats) {
+                    if leaf(child, stats) {
                         return true;
                     }
                 } else {
