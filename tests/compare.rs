@@ -76,6 +76,7 @@ fn compare_small(presets: &str, threads: usize) -> Vec<Vec<(String, String)>> {
         camera: None,
         prims: Some(3000),
         frames: None,
+        instances: None,
     })
     .expect("emc compare runs");
     read_csv(&csv)
@@ -98,6 +99,7 @@ fn frames_report_a_row_per_frame() {
         camera: None,
         prims: Some(4000),
         frames: Some(3),
+        instances: None,
     };
     run(&args("builtin:wave")).expect("emc compare --frames runs");
     let rows = read_csv_with(&csv, emc_cpu::cli::frames::FRAMES_CSV_HEADER);
@@ -128,6 +130,7 @@ fn bad_arguments_are_errors() {
         camera: None,
         prims: Some(100),
         frames: None,
+        instances: None,
     };
     let cases: Vec<(CompareArgs, &str)> = vec![
         (
@@ -182,6 +185,7 @@ fn bad_arguments_are_errors() {
         (
             CompareArgs {
                 frames: Some(0),
+                instances: None,
                 scenes: vec!["builtin:wave".into()],
                 ..base.clone()
             },

@@ -63,6 +63,11 @@ pub struct CompareArgs {
     /// and LOW commits of the same vertices, and the frame's primary rays through each.
     #[arg(long)]
     pub frames: Option<u32>,
+    /// Instance each scene's mesh this many times instead: a two-level `Scene` (quality
+    /// preset mesh, LBVH top level) against the same instances in Embree, top level built,
+    /// moved and traced.
+    #[arg(long, conflicts_with = "frames")]
+    pub instances: Option<usize>,
 }
 
 /// A configuration measured: an emc preset or a peer.
@@ -795,6 +800,17 @@ pub fn run(args: &CompareArgs) -> anyhow::Result<()> {
             fmt_load(loadavg())
         );
         crate::cli::frames::run(args, &ctx, n)?;
+        println!("load average {} after", fmt_load(loadavg()));
+        return Ok(());
+    }
+    if let Some(n) = args.instances {
+        println!(
+            "emc compare --instances: {} thread{}, load average {}",
+            args.threads,
+            if args.threads == 1 { "" } else { "s" },
+            fmt_load(loadavg())
+        );
+        crate::cli::instances::run(args, &ctx, n)?;
         println!("load average {} after", fmt_load(loadavg()));
         return Ok(());
     }

@@ -5,6 +5,7 @@ pub mod build;
 pub mod compare;
 pub mod frames;
 pub mod hwsim;
+pub mod instances;
 pub mod layout;
 pub mod paper;
 pub mod render;

@@ -81,6 +81,8 @@ pub mod sys {
     pub type RTCGeometryType = c_uint;
     /// `RTC_GEOMETRY_TYPE_TRIANGLE`.
     pub const RTC_GEOMETRY_TYPE_TRIANGLE: RTCGeometryType = 0;
+    /// `RTC_GEOMETRY_TYPE_INSTANCE`: a scene instanced under a transform.
+    pub const RTC_GEOMETRY_TYPE_INSTANCE: RTCGeometryType = 121;
     /// `enum RTCBufferType`.
     pub type RTCBufferType = c_uint;
     /// `RTC_BUFFER_TYPE_INDEX`.
@@ -93,6 +95,8 @@ pub mod sys {
     pub const RTC_FORMAT_UINT3: RTCFormat = 0x5003;
     /// `RTC_FORMAT_FLOAT3`.
     pub const RTC_FORMAT_FLOAT3: RTCFormat = 0x9003;
+    /// `RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR`: a 3×4 matrix as four columns of three floats.
+    pub const RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR: RTCFormat = 0x9234;
     /// `enum RTCIntersectContextFlags`.
     pub type RTCIntersectContextFlags = c_uint;
     /// `RTC_INTERSECT_CONTEXT_FLAG_INCOHERENT`.
@@ -230,6 +234,10 @@ pub mod sys {
         pub fn rtcCommitScene(scene: RTCScene);
         /// `rtcReleaseScene`.
         pub fn rtcReleaseScene(scene: RTCScene);
+        /// `rtcRetainScene`.
+        pub fn rtcRetainScene(scene: RTCScene);
+        /// `rtcRetainGeometry`.
+        pub fn rtcRetainGeometry(geometry: RTCGeometry);
         /// `rtcAttachGeometry`.
         pub fn rtcAttachGeometry(scene: RTCScene, geometry: RTCGeometry) -> c_uint;
         /// `rtcNewGeometry`.
@@ -253,6 +261,15 @@ pub mod sys {
         pub fn rtcUpdateGeometryBuffer(geometry: RTCGeometry, kind: RTCBufferType, slot: c_uint);
         /// `rtcCommitGeometry`.
         pub fn rtcCommitGeometry(geometry: RTCGeometry);
+        /// `rtcSetGeometryInstancedScene`.
+        pub fn rtcSetGeometryInstancedScene(geometry: RTCGeometry, scene: RTCScene);
+        /// `rtcSetGeometryTransform`.
+        pub fn rtcSetGeometryTransform(
+            geometry: RTCGeometry,
+            time_step: c_uint,
+            format: RTCFormat,
+            xfm: *const c_void,
+        );
         /// `rtcIntersect1`.
         pub fn rtcIntersect1(
             scene: RTCScene,
@@ -747,6 +764,193 @@ impl Tracer for Animated<'_> {
     }
 }
 
+/// A two-level scene: one mesh as a scene of its own (MEDIUM, as [`Scene`] builds it) and a
+/// top-level scene of instances of it (`RTC_GEOMETRY_TYPE_INSTANCE`, one per transform, ids
+/// in order), at the top-level quality given (LOW with `RTC_SCENE_FLAG_DYNAMIC`, or MEDIUM).
+#[derive(Debug)]
+pub struct Instanced<'a> {
+    device: &'a Device,
+    /// The instanced mesh's scene (its geometry's handle kept for release).
+    blas: (sys::RTCScene, sys::RTCGeometry),
+    top: sys::RTCScene,
+    instances: Vec<sys::RTCGeometry>,
+    quality: Quality,
+    memory: i64,
+}
+
+// SAFETY: as for `Scene`: tracing takes `&self`, the transform updates and commits `&mut self`.
+unsafe impl Sync for Instanced<'_> {}
+// SAFETY: the handles may be used and released from any thread.
+unsafe impl Send for Instanced<'_> {}
+
+/// `m` as Embree's column-major 3×4 floats.
+fn float3x4(m: &glam::Affine3A) -> [f32; 12] {
+    let (x, y, z, t) = (
+        m.matrix3.x_axis,
+        m.matrix3.y_axis,
+        m.matrix3.z_axis,
+        m.translation,
+    );
+    [x.x, x.y, x.z, y.x, y.y, y.z, z.x, z.y, z.z, t.x, t.y, t.z]
+}
+
+impl<'a> Instanced<'a> {
+    /// The mesh's scene, built and committed (not timed: it is what every instance shares).
+    pub fn blas(device: &'a Device, mesh: &'a Mesh) -> Result<(Scene<'a>, Duration), EmbreeError> {
+        Scene::build(device, mesh, Quality::Medium)
+    }
+
+    /// A top-level scene of `transforms.len()` instances of `blas`, timed from `rtcNewScene`
+    /// through every instance's creation to the end of `rtcCommitScene` (cold), and the commit
+    /// alone.
+    pub fn build(
+        device: &'a Device,
+        blas: &Scene<'a>,
+        transforms: &[glam::Affine3A],
+        quality: Quality,
+    ) -> Result<(Instanced<'a>, Duration, Duration), EmbreeError> {
+        device.check("an earlier call")?;
+        if transforms.len() >= u32::MAX as usize {
+            return Err(EmbreeError::Mesh(format!("{} instances", transforms.len())));
+        }
+        let before = device.memory_bytes();
+        let t0 = Instant::now();
+        // SAFETY: the device and the instanced scene are live (borrowed for 'a; Embree keeps
+        // its own reference to the instanced scene); each transform is 12 floats read during
+        // the call only.
+        let (top, instances, commit) = unsafe {
+            let top = sys::rtcNewScene(device.raw);
+            let (q, flags) = match quality {
+                Quality::Low => (sys::RTC_BUILD_QUALITY_LOW, sys::RTC_SCENE_FLAG_DYNAMIC),
+                Quality::Medium => (sys::RTC_BUILD_QUALITY_MEDIUM, sys::RTC_SCENE_FLAG_NONE),
+            };
+            sys::rtcSetSceneBuildQuality(top, q);
+            sys::rtcSetSceneFlags(top, flags);
+            let mut instances = Vec::with_capacity(transforms.len());
+            for m in transforms {
+                let g = sys::rtcNewGeometry(device.raw, sys::RTC_GEOMETRY_TYPE_INSTANCE);
+                sys::rtcSetGeometryInstancedScene(g, blas.raw);
+                let x = float3x4(m);
+                sys::rtcSetGeometryTransform(
+                    g,
+                    0,
+                    sys::RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR,
+                    x.as_ptr() as *const c_void,
+                );
+                sys::rtcCommitGeometry(g);
+                sys::rtcAttachGeometry(top, g);
+                instances.push(g);
+            }
+            let c0 = Instant::now();
+            sys::rtcCommitScene(top);
+            (top, instances, c0.elapsed())
+        };
+        let cold = t0.elapsed();
+        // SAFETY: the instanced mesh scene gains a reference so that it outlives this scene
+        // whatever the caller drops first: `blas` here is only borrowed, so the handles are
+        // retained and released in `Drop`.
+        unsafe {
+            sys::rtcRetainScene(blas.raw);
+            sys::rtcRetainGeometry(blas.geometry);
+        }
+        let s = Instanced {
+            device,
+            blas: (blas.raw, blas.geometry),
+            top,
+            instances,
+            quality,
+            memory: device.memory_bytes() - before,
+        };
+        device.check("building an instanced scene")?;
+        Ok((s, cold, commit))
+    }
+
+    /// Move every instance (as many transforms as instances) and commit: returns the wall
+    /// time of the whole update (`rtcSetGeometryTransform` + `rtcCommitGeometry` per
+    /// instance, then `rtcCommitScene`) and of `rtcCommitScene` alone.
+    pub fn update(
+        &mut self,
+        transforms: &[glam::Affine3A],
+    ) -> Result<(Duration, Duration), EmbreeError> {
+        if transforms.len() != self.instances.len() {
+            return Err(EmbreeError::Mesh(format!(
+                "{} transforms for {} instances",
+                transforms.len(),
+                self.instances.len()
+            )));
+        }
+        let t0 = Instant::now();
+        // SAFETY: every handle is live and owned by `self`; `&mut self` excludes tracing; each
+        // transform is read during its call only.
+        let commit = unsafe {
+            for (&g, m) in self.instances.iter().zip(transforms) {
+                let x = float3x4(m);
+                sys::rtcSetGeometryTransform(
+                    g,
+                    0,
+                    sys::RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR,
+                    x.as_ptr() as *const c_void,
+                );
+                sys::rtcCommitGeometry(g);
+            }
+            let c0 = Instant::now();
+            sys::rtcCommitScene(self.top);
+            c0.elapsed()
+        };
+        let all = t0.elapsed();
+        self.device.check("updating an instanced scene")?;
+        Ok((all, commit))
+    }
+
+    /// The top-level build quality.
+    pub fn quality(&self) -> Quality {
+        self.quality
+    }
+
+    /// Bytes Embree allocated for the top level and its instances.
+    pub fn memory_bytes(&self) -> i64 {
+        self.memory
+    }
+
+    /// Closest hit of one ray (instance id = the instance's index, geometry id 0).
+    #[inline]
+    pub fn intersect(&self, ray: &Ray, ctx: &mut sys::RTCIntersectContext) -> Option<Hit> {
+        intersect_raw(self.top, ray, ctx)
+    }
+}
+
+impl Drop for Instanced<'_> {
+    fn drop(&mut self) {
+        // SAFETY: every handle is live and owned by this value (the instances' creation
+        // references, the top scene's, and the references retained on the mesh's scene and
+        // geometry in `build`); each is released once, the top scene before what it instances.
+        unsafe {
+            sys::rtcReleaseScene(self.top);
+            for &g in &self.instances {
+                sys::rtcReleaseGeometry(g);
+            }
+            sys::rtcReleaseScene(self.blas.0);
+            sys::rtcReleaseGeometry(self.blas.1);
+        }
+    }
+}
+
+impl Tracer for Instanced<'_> {
+    /// Primary rays: one COHERENT context per thread.
+    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Timing) {
+        trace_closest(rays, threads, || context(true), |c, r| self.intersect(r, c))
+    }
+    /// Occlusion: one INCOHERENT context per thread.
+    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Timing) {
+        trace_occluded(
+            rays,
+            threads,
+            || context(false),
+            |c, r| occluded_raw(self.top, r, c),
+        )
+    }
+}
+
 /// A scene of one triangle geometry over shared buffers (`positions`: packed xyz of
 /// `vertex_count` vertices plus 16 bytes of padding; `indices`: packed triples), committed at
 /// the given (scene quality, scene flags, geometry quality). The geometry keeps its creation
@@ -836,15 +1040,20 @@ fn intersect_raw(raw: sys::RTCScene, ray: &Ray, ctx: &mut sys::RTCIntersectConte
     // SAFETY: callers pass a committed, live scene; `ctx` and `rh` are valid, aligned,
     // writable structs of the C layout, borrowed for the call only.
     unsafe { sys::rtcIntersect1(raw, ctx, &mut rh) };
-    (rh.hit.geom_id != sys::RTC_INVALID_GEOMETRY_ID).then_some(Hit::triangle(
-        rh.ray.tfar,
-        rh.hit.prim_id,
-        rh.hit.u,
-        rh.hit.v,
-    ))
+    // Embree's instance id is RTC_INVALID_GEOMETRY_ID (u32::MAX, Hit::NO_INSTANCE) for a
+    // hit not reached through an instance.
+    (rh.hit.geom_id != sys::RTC_INVALID_GEOMETRY_ID).then_some(Hit {
+        t: rh.ray.tfar,
+        prim: rh.hit.prim_id,
+        u: rh.hit.u,
+        v: rh.hit.v,
+        geom: rh.hit.geom_id,
+        instance: rh.hit.inst_id[0],
+    })
 }
 
-/// The harness's ray: origin, direction, the interval, time 0, mask all ones, id 0, flags 0.
+/// The harness's ray: origin, direction, the interval, time 0, the ray's mask (all ones for
+/// the protocol's rays, as the harness), id 0, flags 0.
 #[inline]
 fn to_rtc(r: &Ray) -> sys::RTCRay {
     sys::RTCRay {
@@ -857,7 +1066,7 @@ fn to_rtc(r: &Ray) -> sys::RTCRay {
         dir_z: r.dir.z,
         time: 0.0,
         tfar: r.tfar,
-        mask: u32::MAX,
+        mask: r.mask,
         id: 0,
         flags: 0,
     }

@@ -17,7 +17,7 @@ use glam::Vec3;
 
 use crate::cputime::thread_cpu_time;
 use crate::trace::workload::{pcg_hash, primary_rays, AoCounts, Camera, CameraMode, SceneFrame};
-use crate::trace::{Accel, Hit, Ray};
+use crate::trace::{Accel, Hit, Ray, Scene};
 
 #[cfg(feature = "peers")]
 pub mod embree;
@@ -203,6 +203,15 @@ pub trait Tracer: Sync {
     fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Timing);
 }
 
+impl Tracer for Scene {
+    fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Timing) {
+        trace_closest(rays, threads, || (), |_, r| self.intersect(r))
+    }
+    fn occluded(&self, rays: &[Ray], threads: usize) -> (u64, Timing) {
+        trace_occluded(rays, threads, || (), |_, r| Scene::occluded(self, r))
+    }
+}
+
 impl Tracer for Accel {
     fn closest(&self, rays: &[Ray], threads: usize) -> (Vec<Option<Hit>>, Timing) {
         trace_closest(rays, threads, || (), |_, r| self.intersect(r))
@@ -275,6 +284,17 @@ pub fn harness_ao_rays(
     tris: &[[Vec3; 3]],
     diag: f64,
 ) -> Vec<Ray> {
+    harness_ao_rays_by(primary, hits, |h| tris[h.prim as usize], diag)
+}
+
+/// [`harness_ao_rays`] with the hit triangle's corners given by `tri_of` (for a scene of
+/// instances: the instance's transform applied to the mesh's triangle).
+pub fn harness_ao_rays_by(
+    primary: &[Ray],
+    hits: &[Option<Hit>],
+    tri_of: impl Fn(&Hit) -> [Vec3; 3],
+    diag: f64,
+) -> Vec<Ray> {
     let _ftz = FtzGuard::new();
     let eps = (1e-4 * diag) as f32;
     let tfar = (0.1 * diag) as f32;
@@ -282,7 +302,7 @@ pub fn harness_ao_rays(
     for (i, (ray, hit)) in primary.iter().zip(hits).enumerate() {
         let Some(hit) = hit else { continue };
         let p = ray.origin + hit.t * ray.dir;
-        let t = &tris[hit.prim as usize];
+        let t = tri_of(hit);
         let c = (t[1] - t[0]).cross(t[2] - t[0]);
         let l = c.dot(c).sqrt();
         let mut n = if l > 0.0 { c / l } else { Vec3::Y };

@@ -472,6 +472,11 @@ impl Accel {
         self.indices.len()
     }
 
+    /// Number of vertices (the copy of the mesh's vertex list the structure keeps).
+    pub fn vertex_count(&self) -> usize {
+        self.vertices.len()
+    }
+
     /// All triangles in id order (a new list).
     pub fn triangles(&self) -> Vec<[Vec3; 3]> {
         self.indices

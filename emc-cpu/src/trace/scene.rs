@@ -236,6 +236,30 @@ impl Scene {
             .fold(Aabb::EMPTY, |a, g| a.union(&g.bounds))
     }
 
+    /// Bytes this scene holds: its geometry records, the top-level tree (nodes, packets and
+    /// its copy of the box corners) and the trees of its own meshes and custom primitives.
+    /// Instanced scenes are shared (`Arc`) and counted where they are owned, not here.
+    pub fn memory_bytes(&self) -> usize {
+        let accel = |a: &Accel| {
+            a.wide_bvh().memory_bytes()
+                + a.triangle_count() * core::mem::size_of::<[u32; 3]>()
+                + a.vertex_count() * core::mem::size_of::<Vec3>()
+        };
+        let own: usize = self
+            .geoms
+            .iter()
+            .map(|g| match &g.kind {
+                Kind::Mesh(a) => accel(a),
+                Kind::Custom(c) => c.tree.as_ref().map_or(0, accel),
+                Kind::Instance(_) => 0,
+            })
+            .sum();
+        self.geoms.capacity() * core::mem::size_of::<Geometry>()
+            + self.corners.capacity() * core::mem::size_of::<Vec3>()
+            + self.top.as_ref().map_or(0, accel)
+            + own
+    }
+
     fn push(&mut self, kind: Kind, bounds: Aabb) -> Result<GeomId, TraceError> {
         if self.geoms.len() >= crate::trace::wide::MAX_TRIANGLES {
             return Err(TraceError::TooManyTriangles(self.geoms.len() + 1));

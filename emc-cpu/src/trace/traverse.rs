@@ -751,14 +751,18 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     found.then_some(Hit::triangle(best.t, best.prim, best.u, best.v))
 }
 
-/// The ids of the items of box-tree leaf `code` (see [`closest_items`]), in lane order.
+/// The items of box-tree leaf `code` (see [`closest_items`]) in lane order: each id with its
+/// box, read back from its degenerate triangle (corner 0 is the box's min, corner 1 its max).
 #[inline(always)]
-fn leaf_items(bvh: &WideBvh, code: u32, mut f: impl FnMut(u32)) {
+fn leaf_items(bvh: &WideBvh, code: u32, mut f: impl FnMut(u32, [f32; 3], [f32; 3])) {
     let mut pi = (code & !LEAF) as usize;
     loop {
         let p = &bvh.packets[pi];
-        for &id in &p.id[..p.count as usize] {
-            f(id);
+        for lane in 0..p.count as usize {
+            let v = &p.v;
+            let min = [v[0][lane], v[1][lane], v[2][lane]];
+            let max = [v[3][lane], v[4][lane], v[5][lane]];
+            f(p.id[lane], min, max);
         }
         if p.last != 0 {
             return;
@@ -766,6 +770,10 @@ fn leaf_items(bvh: &WideBvh, code: u32, mut f: impl FnMut(u32)) {
         pi += 1;
     }
 }
+
+/// Items of one leaf sorted by entry distance before they are visited (a leaf of the fast
+/// builder holds at most eight; more are visited as they come).
+const LEAF_ITEMS: usize = 16;
 
 /// The closest-hit walk over a tree of items' boxes (a [`WideBvh`] built over one degenerate
 /// triangle per item whose box is the item's: see `trace::scene`), in the same order and with
@@ -783,8 +791,34 @@ pub(crate) fn closest_items(
         return;
     }
     let mut best = r.tfar;
+    let abs = abs_slack(bvh, r);
+    // Each item's own box is tested (an item is often far costlier than a box: a transformed
+    // ray through a whole tree, or a user's callback), and the entered ones are visited
+    // nearest first while they are within the slackened best distance.
     let mut leaf = |code: u32, _: &mut TraceStats| {
-        leaf_items(bvh, code, |id| best = visit(id, best));
+        let mut near = [(0.0f32, 0u32); LEAF_ITEMS];
+        let mut n = 0;
+        leaf_items(bvh, code, |id, min, max| {
+            if let Some(d) = slab_test(r, min, max, slack(best, abs)) {
+                if n == LEAF_ITEMS {
+                    best = visit(id, best);
+                    return;
+                }
+                let mut j = n;
+                while j > 0 && near[j - 1].0 > d {
+                    near[j] = near[j - 1];
+                    j -= 1;
+                }
+                near[j] = (d, id);
+                n += 1;
+            }
+        });
+        for &(d, id) in &near[..n] {
+            if d > slack(best, abs) {
+                break;
+            }
+            best = visit(id, best);
+        }
         best
     };
     let stats = &mut TraceStats::default();
@@ -1019,9 +1053,12 @@ pub(crate) fn occluded_items(
     if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
         return false;
     }
+    let cull = slack(r.tfar, abs_slack(bvh, r));
     let mut leaf = |code: u32, _: &mut TraceStats| {
         let mut hit = false;
-        leaf_items(bvh, code, |id| hit = hit || visit(id));
+        leaf_items(bvh, code, |id, min, max| {
+            hit = hit || (slab_test(r, min, max, cull).is_some() && visit(id));
+        });
         hit
     };
     let stats = &mut TraceStats::default();

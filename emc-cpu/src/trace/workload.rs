@@ -142,6 +142,11 @@ impl SceneFrame {
                 max = max.max(*v);
             }
         }
+        SceneFrame::of_box(min, max)
+    }
+
+    /// Measures of the box `[min, max]`.
+    pub fn of_box(min: Vec3, max: Vec3) -> SceneFrame {
         let (lo, hi) = (DVec3::from_f32(min), DVec3::from_f32(max));
         SceneFrame {
             min,
@@ -413,4 +418,46 @@ pub fn protocol_counts(bvh: &WideBvh, tris: &[[Vec3; 3]], mode: CameraMode, res:
         ao_rays: ao.len() as u64,
         ao_occluded: occ.iter().filter(|&&o| o).count() as u64,
     }
+}
+
+/// `n` placements of a mesh whose box is `[lo, hi]` for an instanced benchmark scene: a cube of
+/// `⌈∛n⌉³` cells (each 1.25 times the mesh's largest extent) filled in order, each instance
+/// rotated about a random axis, scaled by 0.5 to 0.9 (every fourth mirrored in x, every third
+/// stretched 1.3 times in y), centred in its cell and jittered by up to a tenth of it.
+/// Deterministic in `seed`.
+pub fn instance_grid(n: usize, lo: Vec3, hi: Vec3, seed: u64) -> Vec<glam::Affine3A> {
+    use glam::{Affine3A, Quat};
+    let side = (1..).find(|s: &usize| s.pow(3) >= n).unwrap_or(1);
+    let cell = 1.25 * (hi - lo).max_element().max(f32::MIN_POSITIVE);
+    let centre = 0.5 * (lo + hi);
+    let mut rng = crate::scene::builtin::Pcg32::new(seed, 17);
+    (0..n)
+        .map(|k| {
+            let (i, j, l) = (k % side, (k / side) % side, k / (side * side));
+            let jitter = Vec3::new(
+                rng.range(-0.1, 0.1),
+                rng.range(-0.1, 0.1),
+                rng.range(-0.1, 0.1),
+            );
+            let at = (Vec3::new(i as f32, j as f32, l as f32) + 0.5 + jitter) * cell;
+            let axis = Vec3::new(
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+                rng.range(-1.0, 1.0),
+            )
+            .try_normalize()
+            .unwrap_or(Vec3::Z);
+            let q = Quat::from_axis_angle(axis, rng.range(0.0, core::f32::consts::TAU));
+            let s = rng.range(0.5, 0.9);
+            let mut scale = Vec3::splat(s);
+            if k % 4 == 3 {
+                scale.x = -scale.x;
+            }
+            if k % 3 == 2 {
+                scale.y *= 1.3;
+            }
+            let m = Affine3A::from_scale_rotation_translation(scale, q, Vec3::ZERO);
+            Affine3A::from_translation(at - m.transform_point3(centre)) * m
+        })
+        .collect()
 }
