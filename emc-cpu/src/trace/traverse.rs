@@ -295,17 +295,32 @@ mod sse {
         /// order discards NaN exactly as `max_sse`/`min_sse` do).
         #[inline(always)]
         pub fn test(&self, node: &WideNode, tfar: f32) -> LaneHits {
-            // SAFETY: SSE is part of the x86-64 baseline. The aligned loads read
-            // `planes[n]` / `planes[f]`, `[f32; 4]` rows at 16-byte multiples inside a 64-byte
-            // aligned node; the unaligned store writes the 4 floats of `dist`.
+            self.slabs(|row| &node.planes[row], tfar)
+        }
+
+        /// The slab tests of the four boxes a packet of box-tree items holds (corner 0 of
+        /// each degenerate triangle is its box's min, corner 1 its max: see `leaf_items`), the
+        /// same operations as [`SseRay::test`].
+        #[inline(always)]
+        pub fn test_items(&self, p: &TriPacket, tfar: f32) -> LaneHits {
+            self.slabs(|row| &p.v[(row >> 1) + 3 * (row & 1)], tfar)
+        }
+
+        /// The slab test over plane rows: `plane(2a)` the four minima on axis `a`,
+        /// `plane(2a + 1)` the maxima.
+        #[inline(always)]
+        fn slabs<'p>(&self, plane: impl Fn(usize) -> &'p [f32; 4], tfar: f32) -> LaneHits {
+            // SAFETY: SSE is part of the x86-64 baseline. The loads read `[f32; 4]` rows
+            // (unaligned loads: the rows come from nodes or packets); the unaligned store
+            // writes the 4 floats of `dist`.
             unsafe {
                 let mut t0 = self.tnear;
                 let mut t1 = _mm_set1_ps(tfar);
                 for a in 0..3 {
                     let n = self.near[a];
                     let f = n ^ 1;
-                    let np = _mm_load_ps(node.planes[n].as_ptr());
-                    let fp = _mm_load_ps(node.planes[f].as_ptr());
+                    let np = _mm_loadu_ps(plane(n).as_ptr());
+                    let fp = _mm_loadu_ps(plane(f).as_ptr());
                     let tn = _mm_mul_ps(_mm_sub_ps(np, self.org[a]), self.inv[a]);
                     let tf = _mm_mul_ps(
                         _mm_mul_ps(_mm_sub_ps(fp, self.org[a]), self.inv[a]),
@@ -751,18 +766,41 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     found.then_some(Hit::triangle(best.t, best.prim, best.u, best.v))
 }
 
-/// The items of box-tree leaf `code` (see [`closest_items`]) in lane order: each id with its
-/// box, read back from its degenerate triangle (corner 0 is the box's min, corner 1 its max).
+/// The items of box-tree leaf `code` (see [`closest_items`]) whose boxes the ray enters
+/// within `cull()` (asked afresh for every packet), in lane order, each id with its entry
+/// distance. Boxes are read back from the items' degenerate triangles (corner 0 is the box's
+/// min, corner 1 its max) and tested four at a time (SSE) or one by one (the same answers).
 #[inline(always)]
-fn leaf_items(bvh: &WideBvh, code: u32, mut f: impl FnMut(u32, [f32; 3], [f32; 3])) {
+fn leaf_items(
+    bvh: &WideBvh,
+    code: u32,
+    r: &PreRay,
+    #[cfg(target_arch = "x86_64")] sse: &sse::SseRay,
+    cull: impl Fn() -> f32,
+    mut f: impl FnMut(u32, f32),
+) {
     let mut pi = (code & !LEAF) as usize;
     loop {
         let p = &bvh.packets[pi];
+        #[cfg(target_arch = "x86_64")]
+        {
+            let _ = r;
+            let (mask, dist) = sse.test_items(p, cull());
+            let mut m = mask & ((1u32 << p.count) - 1);
+            while m != 0 {
+                let lane = m.trailing_zeros() as usize;
+                m &= m - 1;
+                f(p.id[lane], dist[lane]);
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
         for lane in 0..p.count as usize {
             let v = &p.v;
             let min = [v[0][lane], v[1][lane], v[2][lane]];
             let max = [v[3][lane], v[4][lane], v[5][lane]];
-            f(p.id[lane], min, max);
+            if let Some(d) = slab_test(r, min, max, cull()) {
+                f(p.id[lane], d);
+            }
         }
         if p.last != 0 {
             return;
@@ -795,13 +833,25 @@ pub(crate) fn closest_items(
     // Each item's own box is tested (an item is often far costlier than a box: a transformed
     // ray through a whole tree, or a user's callback), and the entered ones are visited
     // nearest first while they are within the slackened best distance.
+    #[cfg(target_arch = "x86_64")]
+    let sse = sse::SseRay::new(r);
     let mut leaf = |code: u32, _: &mut TraceStats| {
         let mut near = [(0.0f32, 0u32); LEAF_ITEMS];
         let mut n = 0;
-        leaf_items(bvh, code, |id, min, max| {
-            if let Some(d) = slab_test(r, min, max, slack(best, abs)) {
+        let b = best;
+        leaf_items(
+            bvh,
+            code,
+            r,
+            #[cfg(target_arch = "x86_64")]
+            &sse,
+            || slack(b, abs),
+            |id, d| {
                 if n == LEAF_ITEMS {
-                    best = visit(id, best);
+                    // Past the buffer (never with the fast builder's leaves): visited as
+                    // they come, which only costs order.
+                    let t = visit(id, best);
+                    best = best.min(t);
                     return;
                 }
                 let mut j = n;
@@ -811,8 +861,8 @@ pub(crate) fn closest_items(
                 }
                 near[j] = (d, id);
                 n += 1;
-            }
-        });
+            },
+        );
         for &(d, id) in &near[..n] {
             if d > slack(best, abs) {
                 break;
@@ -1054,11 +1104,19 @@ pub(crate) fn occluded_items(
         return false;
     }
     let cull = slack(r.tfar, abs_slack(bvh, r));
+    #[cfg(target_arch = "x86_64")]
+    let sse = sse::SseRay::new(r);
     let mut leaf = |code: u32, _: &mut TraceStats| {
         let mut hit = false;
-        leaf_items(bvh, code, |id, min, max| {
-            hit = hit || (slab_test(r, min, max, cull).is_some() && visit(id));
-        });
+        leaf_items(
+            bvh,
+            code,
+            r,
+            #[cfg(target_arch = "x86_64")]
+            &sse,
+            || cull,
+            |id, _| hit = hit || visit(id),
+        );
         hit
     };
     let stats = &mut TraceStats::default();
