@@ -232,6 +232,7 @@ fn scene_instances(
         let m = &current[h.instance as usize];
         tris[h.prim as usize].map(|v| m.transform_point3(v))
     };
+    #[cfg_attr(not(feature = "peers"), allow(unused_mut))] // the peers join it
     let mut tracers: Vec<&dyn Tracer> = vec![&scene];
     #[cfg(feature = "peers")]
     tracers.extend(peers.iter().map(|p| p as &dyn Tracer));
