@@ -319,7 +319,7 @@ impl Accel {
             });
         }
         let (bvh, indices, nv) = (&self.bvh, &self.indices, vertices.len());
-        let (plan, all_referenced) = &*self
+        let (plan, all_referenced) = &mut *self
             .refit
             .get_or_insert_with(|| (RefitPlan::new(bvh), every_vertex_referenced(indices, nv)));
         // The largest coordinate of the referenced vertices (as a build measures it): over
@@ -344,7 +344,10 @@ impl Accel {
         let (verts, idx) = (&self.vertices, &self.indices);
         self.bvh.refit(
             plan,
-            |id| idx[id as usize].map(|i| verts[i as usize]),
+            |id| {
+                let [a, b, c] = idx[id as usize];
+                [verts[a as usize], verts[b as usize], verts[c as usize]]
+            },
             max_abs,
         );
         self.debug_validate();

@@ -15,13 +15,17 @@ const PACKETS_PER_TASK: usize = 1024;
 
 /// The order of a refit, from the topology alone: each tree's nodes grouped by depth (root
 /// level first). Computed once per build and kept while only the vertices move.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug)]
 pub struct RefitPlan {
     order4: Order,
     order8: Order,
     /// Per packet: whether it ends its leaf (the packets' own flag, kept compact so that the
     /// node pass does not touch the packets again).
     last: Vec<bool>,
+    /// Scratch kept between refits (fresh buffers of this size cost page faults each time):
+    /// the packets' boxes and the nodes' unpadded boxes.
+    packet_boxes: Vec<Aabb>,
+    node_boxes: Vec<Aabb>,
 }
 
 impl RefitPlan {
@@ -31,6 +35,8 @@ impl RefitPlan {
             order4: Order::of(&bvh.nodes),
             order8: Order::of(&bvh.nodes8),
             last: bvh.packets.iter().map(|p| p.last != 0).collect(),
+            packet_boxes: Vec::new(),
+            node_boxes: Vec::new(),
         }
     }
 }
@@ -242,26 +248,31 @@ impl WideBvh {
     /// follow it). The topology, node order and packet order stay; `plan` must be
     /// [`RefitPlan::new`] of this tree. Refitting to unmoved triangles gives the same nodes
     /// bit for bit.
-    pub fn refit(&mut self, plan: &RefitPlan, tri: impl Fn(u32) -> [Vec3; 3] + Sync, max_abs: f32) {
-        let mut packet_boxes = vec![Aabb::EMPTY; self.packets.len()];
+    pub fn refit(
+        &mut self,
+        plan: &mut RefitPlan,
+        tri: impl Fn(u32) -> [Vec3; 3] + Sync,
+        max_abs: f32,
+    ) {
+        let mut packet_boxes = std::mem::take(&mut plan.packet_boxes);
+        packet_boxes.resize(self.packets.len(), Aabb::EMPTY);
         self.packets
             .par_iter_mut()
             .zip(packet_boxes.par_iter_mut())
             .with_min_len(PACKETS_PER_TASK)
             .for_each(|(p, b)| {
                 for lane in 0..WIDTH {
-                    let t = tri(p.id[lane]);
-                    for (j, v) in t.iter().enumerate() {
-                        for a in 0..3 {
-                            p.v[3 * j + a][lane] = v[a];
-                        }
-                    }
+                    let [v0, v1, v2] = tri(p.id[lane]);
+                    let v = &mut p.v;
+                    (v[0][lane], v[1][lane], v[2][lane]) = (v0.x, v0.y, v0.z);
+                    (v[3][lane], v[4][lane], v[5][lane]) = (v1.x, v1.y, v1.z);
+                    (v[6][lane], v[7][lane], v[8][lane]) = (v2.x, v2.y, v2.z);
                 }
                 *b = packet_box(p);
             });
         self.max_abs = max_abs;
         let pad = max_abs * (1.0 / 65536.0);
-        let mut boxes = Vec::new();
+        let mut boxes = std::mem::take(&mut plan.node_boxes);
         refit_tree::<WIDTH>(
             &mut self.nodes,
             &plan.order4,
@@ -276,5 +287,7 @@ impl WideBvh {
             pad,
             &mut boxes,
         );
+        plan.node_boxes = boxes;
+        plan.packet_boxes = packet_boxes;
     }
 }
