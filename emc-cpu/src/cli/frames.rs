@@ -41,11 +41,13 @@ pub struct FrameRow {
     pub hits: [u64; 2],
 }
 
-fn ms(d: Duration) -> f64 {
+/// Milliseconds of `d`.
+pub(crate) fn ms(d: Duration) -> f64 {
     d.as_secs_f64() * 1e3
 }
 
-fn median(mut v: Vec<f64>) -> f64 {
+/// Median of `v` (NaN when empty).
+pub(crate) fn median(mut v: Vec<f64>) -> f64 {
     v.sort_by(f64::total_cmp);
     match v.len() {
         0 => f64::NAN,

@@ -13,23 +13,11 @@ use anyhow::{bail, Context};
 use glam::{Affine3A, Vec3};
 
 use super::compare::{CompareArgs, Session, BUILDS};
+use super::frames::{median, ms};
 use crate::peers::{harness_ao_rays_by, Timing, Tracer};
 use crate::scene::{load_with, SceneOptions};
 use crate::trace::workload::{instance_grid, primary_rays, Camera, CameraMode, SceneFrame};
 use crate::trace::{BuildOptions, Hit, Preset, Ray, Scene};
-
-fn ms(d: Duration) -> f64 {
-    d.as_secs_f64() * 1e3
-}
-
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    match v.len() {
-        0 => f64::NAN,
-        n if n % 2 == 1 => v[n / 2],
-        n => 0.5 * (v[n / 2 - 1] + v[n / 2]),
-    }
-}
 
 /// One configuration's figures.
 #[derive(Clone, Debug)]
