@@ -24,12 +24,14 @@ pub const CULL_SLACK: f32 = 1.0 + 1.0 / 4096.0;
 /// Absolute part of the culling slack, per ray: `2^-16 · (M + max|o|) / max|d|` with `M` the
 /// largest vertex coordinate. A triangle's `t` carries an absolute error of a few ulps of the
 /// coordinates (vertices minus origin), which dwarfs `t` itself when the origin sits close to
-/// the geometry; 2^-16 leaves a margin of 2^7 over the 2^-23 of those roundings.
+/// the geometry; 2^-16 leaves a margin of 2^7 over the 2^-23 of those roundings. `1/max|d|`
+/// is read off the reciprocals the ray already has (the smallest `|inv|`, within an ulp of
+/// it), so no division is spent per ray.
 #[inline(always)]
 fn abs_slack(bvh: &WideBvh, r: &PreRay) -> f32 {
-    let o = r.org.iter().fold(0.0f32, |m, x| m.max(x.abs()));
-    let d = r.dir.iter().fold(0.0f32, |m, x| m.max(x.abs()));
-    (bvh.max_abs + o) * (1.0 / 65536.0) / d
+    let o = r.org[0].abs().max(r.org[1].abs()).max(r.org[2].abs());
+    let inv_d = r.inv[0].abs().min(r.inv[1].abs()).min(r.inv[2].abs());
+    (bvh.max_abs + o) * (1.0 / 65536.0) * inv_d
 }
 
 /// `t` pushed away by both slacks: `t + |t|·2^-12 + abs` (+inf stays +inf).
@@ -185,8 +187,11 @@ mod avx {
     pub struct AvxRay {
         org: [__m256; 3],
         inv: [__m256; 3],
-        /// Plane row of the near plane per axis (`2a` or `2a + 1`).
+        /// Per axis, the offset in floats of the near plane's row from the first row
+        /// (`8 · (2a + near_is_max[a])`), and of the far plane's (the other row of the axis):
+        /// always one of the six rows of a node.
         near: [usize; 3],
+        far: [usize; 3],
         tnear: __m256,
         widen: __m256,
     }
@@ -196,7 +201,8 @@ mod avx {
         /// AVX2 function).
         #[inline(always)]
         pub fn new(r: &PreRay) -> AvxRay {
-            let near = [0, 1, 2].map(|a| 2 * a + r.near_is_max[a] as usize);
+            let near = [0, 1, 2].map(|a| 8 * (2 * a + r.near_is_max[a] as usize));
+            let far = [0, 1, 2].map(|a| 8 * (2 * a + !r.near_is_max[a] as usize));
             // SAFETY: only reached from functions that run with AVX2 enabled and detected;
             // these intrinsics only move values.
             unsafe {
@@ -204,9 +210,22 @@ mod avx {
                     org: r.org.map(|o| _mm256_set1_ps(o)),
                     inv: r.inv.map(|i| _mm256_set1_ps(i)),
                     near,
+                    far,
                     tnear: _mm256_set1_ps(r.tnear),
                     widen: _mm256_set1_ps(FAR_WIDEN),
                 }
+            }
+        }
+
+        /// The low four lanes of the origin and of `tnear` (what the SSE tests broadcast).
+        #[inline(always)]
+        pub fn low_org_tnear(&self) -> ([__m128; 3], __m128) {
+            // SAFETY: only reached with AVX2 enabled; casts only reinterpret registers.
+            unsafe {
+                (
+                    self.org.map(|o| _mm256_castps256_ps128(o)),
+                    _mm256_castps256_ps128(self.tnear),
+                )
             }
         }
 
@@ -214,17 +233,17 @@ mod avx {
         /// (`vmaxps`/`vminps` discard NaN exactly as `max_sse`/`min_sse` do).
         #[inline(always)]
         pub fn test(&self, node: &WideNode8, tfar: f32) -> LaneHitsN<WIDTH8> {
-            // SAFETY: only reached with AVX2 enabled and detected. The aligned loads read
-            // `[f32; 8]` rows at 32-byte multiples inside a 64-byte aligned node; the unaligned
-            // store writes the 8 floats of `dist`.
+            // SAFETY: only reached with AVX2 enabled and detected. `planes` is six rows of
+            // eight floats, contiguous, in a 64-byte aligned node; `near[a]` and `far[a]` are
+            // multiples of 8 below 48 (set only by `new`), so each aligned load reads one whole
+            // row. The unaligned store writes the 8 floats of `dist`.
             unsafe {
+                let rows = node.planes.as_ptr().cast::<f32>();
                 let mut t0 = self.tnear;
                 let mut t1 = _mm256_set1_ps(tfar);
                 for a in 0..3 {
-                    let n = self.near[a];
-                    let f = n ^ 1;
-                    let np = _mm256_load_ps(node.planes[n].as_ptr());
-                    let fp = _mm256_load_ps(node.planes[f].as_ptr());
+                    let np = _mm256_load_ps(rows.add(self.near[a]));
+                    let fp = _mm256_load_ps(rows.add(self.far[a]));
                     let tn = _mm256_mul_ps(_mm256_sub_ps(np, self.org[a]), self.inv[a]);
                     let tf = _mm256_mul_ps(
                         _mm256_mul_ps(_mm256_sub_ps(fp, self.org[a]), self.inv[a]),
@@ -239,6 +258,15 @@ mod avx {
                 (mask, dist)
             }
         }
+    }
+
+    /// The leaf flags (bit 31) of the eight child codes of `node`, in one instruction: the
+    /// sign bits of the code row read as floats. Only call with AVX2 present.
+    #[inline(always)]
+    pub fn leaf_mask(node: &WideNode8) -> u32 {
+        // SAFETY: only reached with AVX2 enabled; `child` is eight `u32` at byte 192 of a
+        // 64-byte aligned node, so the aligned load reads exactly that row.
+        unsafe { _mm256_movemask_ps(_mm256_load_ps(node.child.as_ptr().cast::<f32>())) as u32 }
     }
 
     /// One AVX2 node test (for the equality tests).
@@ -275,14 +303,23 @@ mod sse {
     impl SseRay {
         #[inline(always)]
         pub fn new(r: &PreRay) -> SseRay {
+            // SAFETY: SSE is part of the x86-64 baseline; these intrinsics only move values.
+            let (org, tnear) = unsafe { (r.org.map(|o| _mm_set1_ps(o)), _mm_set1_ps(r.tnear)) };
+            SseRay::with(r, org, tnear)
+        }
+
+        /// The constants of `r` with the origin and `tnear` already broadcast (by the AVX2
+        /// test, whose low lanes they are).
+        #[inline(always)]
+        pub fn with(r: &PreRay, org: [__m128; 3], tnear: __m128) -> SseRay {
             let near = [0, 1, 2].map(|a| 2 * a + r.near_is_max[a] as usize);
             // SAFETY: SSE is part of the x86-64 baseline; these intrinsics only move values.
             unsafe {
                 SseRay {
-                    org: r.org.map(|o| _mm_set1_ps(o)),
+                    org,
                     inv: r.inv.map(|i| _mm_set1_ps(i)),
                     near,
-                    tnear: _mm_set1_ps(r.tnear),
+                    tnear,
                     widen: _mm_set1_ps(FAR_WIDEN),
                     k: r.k,
                     shear: r.shear.map(|x| _mm_set1_ps(x)),
@@ -422,11 +459,8 @@ struct PacketHits {
     det: [f32; WIDTH],
 }
 
-/// The per-ray node and packet tests of one traversal: a `W`-wide node test plus the
-/// (4-wide) triangle packet test.
-trait Lanes<const W: usize> {
-    /// Test the `W` child boxes of `node` against `[tnear, tfar]`.
-    fn test(&self, node: &WideNodeN<W>, r: &PreRay, tfar: f32) -> LaneHitsN<W>;
+/// The per-ray triangle packet test of one traversal (4-wide, SSE or scalar).
+trait PacketTest {
     /// The SSE packet test, or `None` for the scalar one.
     #[cfg(target_arch = "x86_64")]
     fn sse(&self) -> Option<&sse::SseRay>;
@@ -467,6 +501,105 @@ trait Lanes<const W: usize> {
     }
 }
 
+/// The per-ray node tests of one traversal: a `W`-wide node test plus the (4-wide) triangle
+/// packet test.
+trait Lanes<const W: usize>: PacketTest {
+    /// Test the `W` child boxes of `node` against `[tnear, tfar]`.
+    fn test(&self, node: &WideNodeN<W>, r: &PreRay, tfar: f32) -> LaneHitsN<W>;
+
+    /// Bit `i` set when child `i` of `node` is a leaf (or unused), as [`leaf_mask`].
+    #[inline(always)]
+    fn leaves(&self, node: &WideNodeN<W>) -> u32 {
+        leaf_mask(node)
+    }
+}
+
+/// What a walk does at a leaf it enters: test the leaf's primitives, and say how the walk
+/// goes on (the best distance so far, or whether a hit ends it). A struct rather than a
+/// closure so that its body is inlined into the walk (and its target features).
+trait LeafVisit<R> {
+    /// Visit leaf `code`.
+    fn visit(&mut self, code: u32, stats: &mut TraceStats) -> R;
+}
+
+/// A closure as a leaf visitor (the item trees', whose visits call out anyway).
+struct FnLeaf<F>(F);
+
+impl<R, F: FnMut(u32, &mut TraceStats) -> R> LeafVisit<R> for FnLeaf<F> {
+    #[inline(always)]
+    fn visit(&mut self, code: u32, stats: &mut TraceStats) -> R {
+        (self.0)(code, stats)
+    }
+}
+
+/// The closest-hit visitor of triangle leaves: every packet of the leaf tested up to the best
+/// distance so far; returns the new best distance.
+struct ClosestTris<'a, P, const STATS: bool> {
+    bvh: &'a WideBvh,
+    r: &'a PreRay,
+    lanes: &'a P,
+    best: Best,
+    found: bool,
+}
+
+impl<P: PacketTest, const STATS: bool> LeafVisit<f32> for ClosestTris<'_, P, STATS> {
+    // Not inlined: measured, the closest-hit walk with the packet test inlined ran primary
+    // rays 3-13% slower (pbrt-bathroom, stanford-dragon), the any-hit walk gains from it.
+    #[inline(never)]
+    fn visit(&mut self, code: u32, stats: &mut TraceStats) -> f32 {
+        let mut pi = (code & !LEAF) as usize;
+        loop {
+            let p = &self.bvh.packets[pi];
+            if STATS {
+                stats.tri_tests += p.count as u64;
+            }
+            let (best, found) = (&mut self.best, &mut self.found);
+            self.lanes.packet(self.r, p, best.t, |t, u, v, prim| {
+                if !*found || better(t, prim, best.t, best.prim) {
+                    *best = Best { t, prim, u, v };
+                    *found = true;
+                }
+            });
+            if p.last != 0 {
+                break;
+            }
+            pi += 1;
+        }
+        self.best.t
+    }
+}
+
+/// The any-hit visitor of triangle leaves: true when a triangle of the leaf is hit in
+/// `[tnear, tfar]`.
+struct OccludedTris<'a, P, const STATS: bool> {
+    bvh: &'a WideBvh,
+    r: &'a PreRay,
+    lanes: &'a P,
+}
+
+impl<P: PacketTest, const STATS: bool> LeafVisit<bool> for OccludedTris<'_, P, STATS> {
+    #[inline(always)]
+    fn visit(&mut self, code: u32, stats: &mut TraceStats) -> bool {
+        let mut pi = (code & !LEAF) as usize;
+        loop {
+            let p = &self.bvh.packets[pi];
+            if STATS {
+                stats.tri_tests += p.count as u64;
+            }
+            let mut hit = false;
+            self.lanes
+                .packet(self.r, p, self.r.tfar, |_, _, _, _| hit = true);
+            if hit {
+                return true;
+            }
+            if p.last != 0 {
+                return false;
+            }
+            pi += 1;
+        }
+    }
+}
+
 /// The scalar test of one packet lane whose SIMD edge function was zero (rare), kept out of
 /// line so the hot loops stay small.
 #[cfg(target_arch = "x86_64")]
@@ -484,6 +617,9 @@ impl<const W: usize> Lanes<W> for ScalarLanes {
     fn test(&self, node: &WideNodeN<W>, r: &PreRay, tfar: f32) -> LaneHitsN<W> {
         node_test_scalar(node, r, tfar)
     }
+}
+
+impl PacketTest for ScalarLanes {
     #[cfg(target_arch = "x86_64")]
     #[inline(always)]
     fn sse(&self) -> Option<&sse::SseRay> {
@@ -501,6 +637,10 @@ impl Lanes<WIDTH> for SseLanes {
     fn test(&self, node: &WideNode, _: &PreRay, tfar: f32) -> LaneHits {
         self.0.test(node, tfar)
     }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl PacketTest for SseLanes {
     #[inline(always)]
     fn sse(&self) -> Option<&sse::SseRay> {
         Some(&self.0)
@@ -512,11 +652,32 @@ impl Lanes<WIDTH> for SseLanes {
 struct AvxLanes(avx::AvxRay, sse::SseRay);
 
 #[cfg(target_arch = "x86_64")]
+impl AvxLanes {
+    /// Both testers of `r`, the SSE one reusing the AVX2 one's origin and `tnear` registers.
+    /// Only call with AVX2 present (inlined into an AVX2 function).
+    #[inline(always)]
+    fn new(r: &PreRay) -> AvxLanes {
+        let avx = avx::AvxRay::new(r);
+        let (org, tnear) = avx.low_org_tnear();
+        AvxLanes(avx, sse::SseRay::with(r, org, tnear))
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
 impl Lanes<WIDTH8> for AvxLanes {
     #[inline(always)]
     fn test(&self, node: &WideNode8, _: &PreRay, tfar: f32) -> LaneHitsN<WIDTH8> {
         self.0.test(node, tfar)
     }
+
+    #[inline(always)]
+    fn leaves(&self, node: &WideNode8) -> u32 {
+        avx::leaf_mask(node)
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl PacketTest for AvxLanes {
     #[inline(always)]
     fn sse(&self) -> Option<&sse::SseRay> {
         Some(&self.1)
@@ -668,6 +829,27 @@ fn tree_of(bvh: &WideBvh, kind: NodeTest) -> (bool, NodeTest) {
     (eight, kind)
 }
 
+/// The loop a traversal runs: which tree, which node test (see [`tree_of`]), chosen per call
+/// from the tree and the (cached) CPU features, before any per-ray work.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Kernel {
+    Avx2,
+    Sse,
+    Scalar8,
+    Scalar4,
+}
+
+/// The kernel of a traversal asked for `kind` in `bvh`.
+#[inline(always)]
+fn kernel_of(bvh: &WideBvh, kind: NodeTest) -> Kernel {
+    match tree_of(bvh, kind) {
+        (true, NodeTest::Avx2) if avx2_available() => Kernel::Avx2,
+        (true, _) => Kernel::Scalar8,
+        (false, NodeTest::Simd) if cfg!(target_arch = "x86_64") => Kernel::Sse,
+        (false, _) => Kernel::Scalar4,
+    }
+}
+
 /// Closest hit of `ray` in `bvh` (`None` when nothing is hit in `[tnear, tfar]` or the ray is
 /// invalid), counting work into `stats` when `STATS` is set.
 #[inline]
@@ -683,22 +865,16 @@ pub fn closest<const STATS: bool>(
     if !ray.is_valid() || (bvh.nodes.is_empty() && bvh.nodes8.is_empty()) {
         return None;
     }
-    let r = PreRay::new(ray);
-    let (eight, kind) = tree_of(bvh, kind);
-    #[cfg(target_arch = "x86_64")]
-    if eight && kind == NodeTest::Avx2 && avx2_available() {
-        // SAFETY: the CPU has AVX2 (checked just above).
-        return unsafe { closest_avx2::<STATS>(bvh, &r, stats) };
-    }
-    #[cfg(target_arch = "x86_64")]
-    if !eight && matches!(kind, NodeTest::Simd | NodeTest::Avx2) {
-        let l = SseLanes(sse::SseRay::new(&r));
-        return closest_in::<WIDTH, STATS, _>(bvh, &bvh.nodes, &r, &l, stats);
-    }
-    if eight {
-        closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &ScalarLanes, stats)
-    } else {
-        closest_in::<WIDTH, STATS, _>(bvh, &bvh.nodes, &r, &ScalarLanes, stats)
+    // Each kernel is its own function that makes the ray's constants itself: with its target
+    // features, and without the other kernels' registers and stack in its frame.
+    match kernel_of(bvh, kind) {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `kernel_of` picks `Avx2` only when the CPU has AVX2.
+        Kernel::Avx2 => unsafe { closest_avx2::<STATS>(bvh, ray, stats) },
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Sse => closest_sse::<STATS>(bvh, ray, stats),
+        Kernel::Scalar8 => closest_scalar::<WIDTH8, STATS>(bvh, &bvh.nodes8, ray, stats),
+        _ => closest_scalar::<WIDTH, STATS>(bvh, &bvh.nodes, ray, stats),
     }
 }
 
@@ -708,13 +884,36 @@ pub fn closest<const STATS: bool>(
 /// The CPU must have AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
+#[inline(never)]
 unsafe fn closest_avx2<const STATS: bool>(
     bvh: &WideBvh,
-    r: &PreRay,
+    ray: &Ray,
     stats: &mut TraceStats,
 ) -> Option<Hit> {
-    let l = AvxLanes(avx::AvxRay::new(r), sse::SseRay::new(r));
-    closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, r, &l, stats)
+    let r = PreRay::new(ray);
+    let l = AvxLanes::new(&r);
+    closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
+}
+
+/// [`closest`] on the 4-wide tree with the SSE node test.
+#[cfg(target_arch = "x86_64")]
+#[inline(never)]
+fn closest_sse<const STATS: bool>(bvh: &WideBvh, ray: &Ray, stats: &mut TraceStats) -> Option<Hit> {
+    let r = PreRay::new(ray);
+    let l = SseLanes(sse::SseRay::new(&r));
+    closest_in::<WIDTH, STATS, _>(bvh, &bvh.nodes, &r, &l, stats)
+}
+
+/// [`closest`] on either tree with the scalar node and packet tests.
+#[inline(never)]
+fn closest_scalar<const W: usize, const STATS: bool>(
+    bvh: &WideBvh,
+    nodes: &[WideNodeN<W>],
+    ray: &Ray,
+    stats: &mut TraceStats,
+) -> Option<Hit> {
+    let r = PreRay::new(ray);
+    closest_in::<W, STATS, _>(bvh, nodes, &r, &ScalarLanes, stats)
 }
 
 /// The best hit so far of a closest-hit traversal (the [`Hit`] without the ids a
@@ -736,34 +935,21 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     lanes: &L,
     stats: &mut TraceStats,
 ) -> Option<Hit> {
-    let mut best = Best {
-        t: r.tfar,
-        prim: u32::MAX,
-        u: 0.0,
-        v: 0.0,
+    let mut v = ClosestTris::<L, STATS> {
+        bvh,
+        r,
+        lanes,
+        best: Best {
+            t: r.tfar,
+            prim: u32::MAX,
+            u: 0.0,
+            v: 0.0,
+        },
+        found: false,
     };
-    let mut found = false;
-    closest_walk::<W, STATS, L>(bvh, nodes, r, lanes, stats, |code, stats| {
-        let mut pi = (code & !LEAF) as usize;
-        loop {
-            let p = &bvh.packets[pi];
-            if STATS {
-                stats.tri_tests += p.count as u64;
-            }
-            lanes.packet(r, p, best.t, |t, u, v, prim| {
-                if !found || better(t, prim, best.t, best.prim) {
-                    best = Best { t, prim, u, v };
-                    found = true;
-                }
-            });
-            if p.last != 0 {
-                break;
-            }
-            pi += 1;
-        }
-        best.t
-    });
-    found.then_some(Hit::triangle(best.t, best.prim, best.u, best.v))
+    closest_walk::<W, STATS, L>(bvh, nodes, r, lanes, stats, &mut v);
+    let b = v.best;
+    v.found.then_some(Hit::triangle(b.t, b.prim, b.u, b.v))
 }
 
 /// The items of box-tree leaf `code` (see [`closest_items`]) whose boxes the ray enters
@@ -835,7 +1021,7 @@ pub(crate) fn closest_items(
     // nearest first while they are within the slackened best distance.
     #[cfg(target_arch = "x86_64")]
     let sse = sse::SseRay::new(r);
-    let mut leaf = |code: u32, _: &mut TraceStats| {
+    let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
         let mut near = [(0.0f32, 0u32); LEAF_ITEMS];
         let mut n = 0;
         let b = best;
@@ -870,7 +1056,7 @@ pub(crate) fn closest_items(
             best = visit(id, best);
         }
         best
-    };
+    });
     let stats = &mut TraceStats::default();
     let (eight, kind) = tree_of(bvh, kind);
     #[cfg(target_arch = "x86_64")]
@@ -881,12 +1067,12 @@ pub(crate) fn closest_items(
     #[cfg(target_arch = "x86_64")]
     if !eight && matches!(kind, NodeTest::Simd | NodeTest::Avx2) {
         let l = SseLanes(sse::SseRay::new(r));
-        return closest_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &l, stats, leaf);
+        return closest_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &l, stats, &mut leaf);
     }
     if eight {
-        closest_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &ScalarLanes, stats, leaf)
+        closest_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &ScalarLanes, stats, &mut leaf)
     } else {
-        closest_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &ScalarLanes, stats, leaf)
+        closest_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &ScalarLanes, stats, &mut leaf)
     }
 }
 
@@ -900,9 +1086,9 @@ unsafe fn closest_items_avx2(
     bvh: &WideBvh,
     r: &PreRay,
     stats: &mut TraceStats,
-    leaf: &mut impl FnMut(u32, &mut TraceStats) -> f32,
+    leaf: &mut impl LeafVisit<f32>,
 ) {
-    let l = AvxLanes(avx::AvxRay::new(r), sse::SseRay::new(r));
+    let l = AvxLanes::new(r);
     closest_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &l, stats, leaf)
 }
 
@@ -916,7 +1102,7 @@ fn closest_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
     r: &PreRay,
     lanes: &L,
     stats: &mut TraceStats,
-    mut leaf: impl FnMut(u32, &mut TraceStats) -> f32,
+    leaf: &mut impl LeafVisit<f32>,
 ) {
     let abs = abs_slack(bvh, r);
     let mut cull = slack(r.tfar, abs);
@@ -926,9 +1112,10 @@ fn closest_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
         if d > cull {
             continue;
         }
-        if code & LEAF != 0 {
-            cull = slack(leaf(code, stats), abs);
-        } else {
+        // Only inner nodes travel: node 0 is the root (a leaf root is a child of it) and
+        // leaves are visited where they are entered, below.
+        debug_assert!(code & LEAF == 0);
+        {
             let node = &nodes[code as usize];
             if STATS {
                 stats.node_tests += 1;
@@ -937,7 +1124,7 @@ fn closest_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
             // Entered leaves are tested at once, nearest first, each only while its entry
             // distance is within the (shrinking) cull distance; inner children still entered
             // within it are then visited nearest first.
-            let lm = leaf_mask(node);
+            let lm = lanes.leaves(node);
             let leaves = mask & lm;
             let mut inner = mask & !lm;
             if leaves != 0 {
@@ -952,31 +1139,27 @@ fn closest_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
                         core::mem::size_of::<WideNodeN<W>>(),
                     );
                 }
-                if leaves & (leaves - 1) == 0 {
-                    // One leaf: entered within `cull`, so tested.
-                    let lane = leaves.trailing_zeros() as usize;
-                    cull = slack(leaf(node.child[lane], stats), abs);
-                } else {
-                    let mut order = [(0u32, 0.0f32); W];
-                    let mut n = 0;
-                    let mut m = leaves;
-                    while m != 0 {
-                        let lane = m.trailing_zeros() as usize;
-                        m &= m - 1;
-                        let mut j = n;
-                        while j > 0 && order[j - 1].1 > dist[lane] {
-                            order[j] = order[j - 1];
-                            j -= 1;
-                        }
-                        order[j] = (node.child[lane], dist[lane]);
-                        n += 1;
+                // Nearest first (one leaf, the common case, needs no sorting); one call
+                // site, so the leaf test is inlined once.
+                let mut order = [(0u32, 0.0f32); W];
+                let mut n = 0;
+                let mut m = leaves;
+                while m != 0 {
+                    let lane = m.trailing_zeros() as usize;
+                    m &= m - 1;
+                    let mut j = n;
+                    while j > 0 && order[j - 1].1 > dist[lane] {
+                        order[j] = order[j - 1];
+                        j -= 1;
                     }
-                    for &(child, d) in &order[..n] {
-                        if d > cull {
-                            break;
-                        }
-                        cull = slack(leaf(child, stats), abs);
+                    order[j] = (node.child[lane], dist[lane]);
+                    n += 1;
+                }
+                for &(child, d) in &order[..n] {
+                    if d > cull {
+                        break;
                     }
+                    cull = slack(leaf.visit(child, stats), abs);
                 }
                 let mut m = inner;
                 while m != 0 {
@@ -1043,22 +1226,14 @@ pub fn occluded<const STATS: bool>(
     if !ray.is_valid() || (bvh.nodes.is_empty() && bvh.nodes8.is_empty()) {
         return false;
     }
-    let r = PreRay::new(ray);
-    let (eight, kind) = tree_of(bvh, kind);
-    #[cfg(target_arch = "x86_64")]
-    if eight && kind == NodeTest::Avx2 && avx2_available() {
-        // SAFETY: the CPU has AVX2 (checked just above).
-        return unsafe { occluded_avx2::<STATS>(bvh, &r, stats) };
-    }
-    #[cfg(target_arch = "x86_64")]
-    if !eight && matches!(kind, NodeTest::Simd | NodeTest::Avx2) {
-        let l = SseLanes(sse::SseRay::new(&r));
-        return occluded_in::<WIDTH, STATS, _>(bvh, &bvh.nodes, &r, &l, stats);
-    }
-    if eight {
-        occluded_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &ScalarLanes, stats)
-    } else {
-        occluded_in::<WIDTH, STATS, _>(bvh, &bvh.nodes, &r, &ScalarLanes, stats)
+    match kernel_of(bvh, kind) {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `kernel_of` picks `Avx2` only when the CPU has AVX2.
+        Kernel::Avx2 => unsafe { occluded_avx2::<STATS>(bvh, ray, stats) },
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Sse => occluded_sse::<STATS>(bvh, ray, stats),
+        Kernel::Scalar8 => occluded_scalar::<WIDTH8, STATS>(bvh, &bvh.nodes8, ray, stats),
+        _ => occluded_scalar::<WIDTH, STATS>(bvh, &bvh.nodes, ray, stats),
     }
 }
 
@@ -1068,13 +1243,36 @@ pub fn occluded<const STATS: bool>(
 /// The CPU must have AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
+#[inline(never)]
 unsafe fn occluded_avx2<const STATS: bool>(
     bvh: &WideBvh,
-    r: &PreRay,
+    ray: &Ray,
     stats: &mut TraceStats,
 ) -> bool {
-    let l = AvxLanes(avx::AvxRay::new(r), sse::SseRay::new(r));
-    occluded_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, r, &l, stats)
+    let r = PreRay::new(ray);
+    let l = AvxLanes::new(&r);
+    occluded_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
+}
+
+/// [`occluded`] on the 4-wide tree with the SSE node test.
+#[cfg(target_arch = "x86_64")]
+#[inline(never)]
+fn occluded_sse<const STATS: bool>(bvh: &WideBvh, ray: &Ray, stats: &mut TraceStats) -> bool {
+    let r = PreRay::new(ray);
+    let l = SseLanes(sse::SseRay::new(&r));
+    occluded_in::<WIDTH, STATS, _>(bvh, &bvh.nodes, &r, &l, stats)
+}
+
+/// [`occluded`] on either tree with the scalar node and packet tests.
+#[inline(never)]
+fn occluded_scalar<const W: usize, const STATS: bool>(
+    bvh: &WideBvh,
+    nodes: &[WideNodeN<W>],
+    ray: &Ray,
+    stats: &mut TraceStats,
+) -> bool {
+    let r = PreRay::new(ray);
+    occluded_in::<W, STATS, _>(bvh, nodes, &r, &ScalarLanes, stats)
 }
 
 /// The any-hit loop over one triangle tree.
@@ -1086,9 +1284,8 @@ fn occluded_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     lanes: &L,
     stats: &mut TraceStats,
 ) -> bool {
-    occluded_walk::<W, STATS, L>(bvh, nodes, r, lanes, stats, |code, stats| {
-        leaf_occludes::<STATS, W, L>(bvh, code, r, lanes, stats)
-    })
+    let mut v = OccludedTris::<L, STATS> { bvh, r, lanes };
+    occluded_walk::<W, STATS, L>(bvh, nodes, r, lanes, stats, &mut v)
 }
 
 /// True when `visit(id)` is true for an item of the box tree `bvh` whose box the ray enters
@@ -1106,7 +1303,7 @@ pub(crate) fn occluded_items(
     let cull = slack(r.tfar, abs_slack(bvh, r));
     #[cfg(target_arch = "x86_64")]
     let sse = sse::SseRay::new(r);
-    let mut leaf = |code: u32, _: &mut TraceStats| {
+    let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
         let mut hit = false;
         leaf_items(
             bvh,
@@ -1118,7 +1315,7 @@ pub(crate) fn occluded_items(
             |id, _| hit = hit || visit(id),
         );
         hit
-    };
+    });
     let stats = &mut TraceStats::default();
     let (eight, kind) = tree_of(bvh, kind);
     #[cfg(target_arch = "x86_64")]
@@ -1129,12 +1326,12 @@ pub(crate) fn occluded_items(
     #[cfg(target_arch = "x86_64")]
     if !eight && matches!(kind, NodeTest::Simd | NodeTest::Avx2) {
         let l = SseLanes(sse::SseRay::new(r));
-        return occluded_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &l, stats, leaf);
+        return occluded_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &l, stats, &mut leaf);
     }
     if eight {
-        occluded_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &ScalarLanes, stats, leaf)
+        occluded_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &ScalarLanes, stats, &mut leaf)
     } else {
-        occluded_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &ScalarLanes, stats, leaf)
+        occluded_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &ScalarLanes, stats, &mut leaf)
     }
 }
 
@@ -1148,9 +1345,9 @@ unsafe fn occluded_items_avx2(
     bvh: &WideBvh,
     r: &PreRay,
     stats: &mut TraceStats,
-    leaf: &mut impl FnMut(u32, &mut TraceStats) -> bool,
+    leaf: &mut impl LeafVisit<bool>,
 ) -> bool {
-    let l = AvxLanes(avx::AvxRay::new(r), sse::SseRay::new(r));
+    let l = AvxLanes::new(r);
     occluded_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &l, stats, leaf)
 }
 
@@ -1163,7 +1360,7 @@ fn occluded_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
     r: &PreRay,
     lanes: &L,
     stats: &mut TraceStats,
-    mut leaf: impl FnMut(u32, &mut TraceStats) -> bool,
+    leaf: &mut impl LeafVisit<bool>,
 ) -> bool {
     let abs = abs_slack(bvh, r);
     let cull = slack(r.tfar, abs);
@@ -1171,7 +1368,7 @@ fn occluded_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
     stack.push((0, r.tnear));
     while let Some((code, _)) = stack.pop() {
         if code & LEAF != 0 {
-            if leaf(code, stats) {
+            if leaf.visit(code, stats) {
                 return true;
             }
         } else {
@@ -1203,7 +1400,7 @@ fn occluded_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
                 m &= m - 1;
                 let child = node.child[lane];
                 if child & LEAF != 0 {
-                    if leaf(child, stats) {
+                    if leaf.visit(child, stats) {
                         return true;
                     }
                 } else {
@@ -1213,31 +1410,4 @@ fn occluded_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
         }
     }
     false
-}
-
-/// True when a triangle of leaf `code` is hit in `[tnear, tfar]`.
-#[inline(always)]
-fn leaf_occludes<const STATS: bool, const W: usize, L: Lanes<W>>(
-    bvh: &WideBvh,
-    code: u32,
-    r: &PreRay,
-    lanes: &L,
-    stats: &mut TraceStats,
-) -> bool {
-    let mut pi = (code & !LEAF) as usize;
-    loop {
-        let p = &bvh.packets[pi];
-        if STATS {
-            stats.tri_tests += p.count as u64;
-        }
-        let mut hit = false;
-        lanes.packet(r, p, r.tfar, |_, _, _, _| hit = true);
-        if hit {
-            return true;
-        }
-        if p.last != 0 {
-            return false;
-        }
-        pi += 1;
-    }
 }
