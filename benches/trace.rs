@@ -62,6 +62,7 @@ fn bench_trace(c: &mut Criterion) {
         g.sample_size(10);
         let bvh = w.accel.wide_bvh();
         for kind in [
+            NodeTest::Avx512,
             NodeTest::Avx2,
             NodeTest::Simd,
             NodeTest::Scalar8,

@@ -13,7 +13,8 @@ use emc_cpu::scene::{self, Mesh, SceneOptions};
 use emc_cpu::trace::image::{shade, Image, Shading};
 use emc_cpu::trace::intersect::{brute_force_closest, brute_force_occluded, slab_test, PreRay};
 use emc_cpu::trace::traverse::{
-    avx2_available, closest, node_test_avx2, node_test_scalar, node_test_simd, occluded,
+    avx2_available, avx512_available, closest, node_test_avx2, node_test_avx512, node_test_scalar,
+    node_test_simd, occluded,
 };
 use emc_cpu::trace::wide::{WideNodeN, MAX_DEPTH};
 use emc_cpu::trace::workload::{
@@ -231,10 +232,25 @@ fn check_against_brute_force(name: &str, tris: &[[Vec3; 3]], bvh: &WideBvh, rays
     check_against(name, bvh, rays, &brute_force(tris, rays));
 }
 
+/// The SIMD kernels this CPU runs: SSE (4-wide tree), AVX2 and, where the CPU has it,
+/// AVX-512 (8-wide tree); a kernel the CPU lacks is skipped with a message (once).
+fn simd_kernels() -> Vec<NodeTest> {
+    static SAID: OnceLock<()> = OnceLock::new();
+    let mut k = vec![NodeTest::Simd, NodeTest::Avx2];
+    if avx512_available() {
+        k.push(NodeTest::Avx512);
+    } else {
+        SAID.get_or_init(|| {
+            println!("no AVX-512 F/VL/DQ on this CPU: the Avx512 kernel is skipped")
+        });
+    }
+    k
+}
+
 /// Check closest hit (t bits and id) and any hit against precomputed brute-force answers, on
-/// the 4-wide (SSE) and the 8-wide (AVX2) tree.
+/// the 4-wide (SSE) and the 8-wide (AVX2, AVX-512) tree.
 fn check_against(name: &str, bvh: &WideBvh, rays: &[Ray], want: &[(Option<Hit>, bool)]) {
-    for kind in [NodeTest::Simd, NodeTest::Avx2] {
+    for kind in simd_kernels() {
         check_against_with(&format!("{name} {kind:?}"), bvh, rays, want, kind);
     }
 }
@@ -294,6 +310,14 @@ fn avx2_node_test_equals_scalar_bit_for_bit() {
         println!("no AVX2 on this CPU: node_test_avx2 is the scalar test itself");
     }
     check_node_test::<8>(node_test_avx2);
+}
+
+#[test]
+fn avx512_node_test_equals_scalar_bit_for_bit() {
+    if !avx512_available() {
+        println!("no AVX-512 F/VL/DQ on this CPU: node_test_avx512 falls back to the AVX2 test");
+    }
+    check_node_test::<8>(node_test_avx512);
 }
 
 /// Random and adversarial nodes and rays (±0 components, origins on planes, unused lanes):
@@ -562,10 +586,11 @@ fn scalar_and_simd_traversals_agree_including_work_counters() {
     let tris = triangles(&s);
     let rays = test_rays(&tris, 20_000, 5);
     for (b, bvh) in all_bvhs(&tris) {
-        for (scalar, simd) in [
-            (NodeTest::Scalar, NodeTest::Simd),
-            (NodeTest::Scalar8, NodeTest::Avx2),
-        ] {
+        let eight = simd_kernels().into_iter().filter(|k| k.width() == 8);
+        let pairs = [(NodeTest::Scalar, NodeTest::Simd)]
+            .into_iter()
+            .chain(eight.map(|k| (NodeTest::Scalar8, k)));
+        for (scalar, simd) in pairs {
             let mut s1 = TraceStats::default();
             let mut s2 = TraceStats::default();
             for r in &rays {

@@ -14,7 +14,7 @@ use crate::trace::workload::{
     all_ao_rays, all_bounce_rays, primary_rays, trace_closest, trace_occluded, Camera, CameraMode,
     SceneFrame,
 };
-use crate::trace::{Accel, BuildOptions, NodeTest, Preset, TraceStats};
+use crate::trace::{Accel, BuildOptions, Preset, TraceStats};
 
 /// Arguments of `emc render`.
 #[derive(clap::Args, Debug, Clone)]
@@ -204,15 +204,10 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         w.memory_bytes() as f64 / (1 << 20) as f64,
         w.sah()
     );
+    let (runs, why) = kind.resolved();
     println!(
-        "traversal: {}-wide, {:?} node test{}",
-        kind.width(),
-        kind,
-        if kind == NodeTest::Avx2 && !crate::trace::traverse::avx2_available() {
-            " (no AVX2 on this CPU: scalar fallback)"
-        } else {
-            ""
-        }
+        "traversal: {}-wide, {runs:?} node test ({why})",
+        kind.width()
     );
     let frame = SceneFrame::of(tris);
     let cam = Camera::protocol(&frame, mode);
