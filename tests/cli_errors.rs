@@ -171,6 +171,37 @@ fn bad_options() {
             "1000",
             "--res",
             "16",
+            "--kernels",
+            "avx3",
+        ],
+        &["avx3"],
+    );
+    // A 4-wide test on the 8-wide tree.
+    expect_error(
+        &emc,
+        &[
+            "render",
+            u,
+            "--prims",
+            "1000",
+            "--res",
+            "16",
+            "--width",
+            "8",
+            "--kernels",
+            "avx2,sse",
+        ],
+        &["sse", "8-wide"],
+    );
+    expect_error(
+        &emc,
+        &[
+            "render",
+            u,
+            "--prims",
+            "1000",
+            "--res",
+            "16",
             "--out",
             "/nonexistent-dir/x.png",
         ],

@@ -14,7 +14,7 @@ use crate::trace::workload::{
     all_ao_rays, all_bounce_rays, primary_rays, trace_closest, trace_occluded, Camera, CameraMode,
     SceneFrame,
 };
-use crate::trace::{Accel, BuildOptions, Preset, TraceStats};
+use crate::trace::{Accel, BuildOptions, NodeTest, Preset, TraceStats};
 
 /// Arguments of `emc render`.
 #[derive(clap::Args, Debug, Clone)]
@@ -62,6 +62,58 @@ pub struct RenderArgs {
     /// Trace each ray set this many times and report the run with the median CPU time.
     #[arg(long, default_value_t = 1)]
     pub repeat: usize,
+    /// Also compare these node tests on the traced tree (comma-separated: scalar, sse for
+    /// width 4; scalar8, avx2, avx512 for width 8), on one thread, interleaved per block of
+    /// 2048 rays (the order rotating from block to block, `--repeat` passes, at least 3), so
+    /// that the machine's drift falls on all alike; prints Mrays/s and the ratio to the first.
+    #[arg(long, value_delimiter = ',')]
+    pub kernels: Vec<String>,
+}
+
+/// Rays per block of the `--kernels` comparison.
+const KERNEL_BLOCK: usize = 2048;
+
+/// The `--kernels` comparison: per kernel, the wall seconds of all its blocks and its counts
+/// (primary hits, AO occluded).
+fn compare_kernels(
+    w: &crate::trace::WideBvh,
+    kinds: &[NodeTest],
+    primary: &[crate::trace::Ray],
+    ao: &[crate::trace::Ray],
+    passes: usize,
+) -> Vec<(f64, f64, usize, usize)> {
+    use crate::trace::traverse::{closest, occluded};
+    let n = kinds.len();
+    let mut out = vec![(0.0, 0.0, 0usize, 0usize); n];
+    for turn in 0..passes {
+        for (bi, b) in primary.chunks(KERNEL_BLOCK).enumerate() {
+            for j in 0..n {
+                let k = (bi + j + turn) % n;
+                let s = &mut TraceStats::default();
+                let t = Instant::now();
+                let c = b
+                    .iter()
+                    .filter(|r| closest::<false>(w, r, kinds[k], s).is_some())
+                    .count();
+                out[k].0 += t.elapsed().as_secs_f64();
+                out[k].2 += c;
+            }
+        }
+        for (bi, b) in ao.chunks(KERNEL_BLOCK).enumerate() {
+            for j in 0..n {
+                let k = (bi + j + turn) % n;
+                let s = &mut TraceStats::default();
+                let t = Instant::now();
+                let c = b
+                    .iter()
+                    .filter(|r| occluded::<false>(w, r, kinds[k], s))
+                    .count();
+                out[k].1 += t.elapsed().as_secs_f64();
+                out[k].3 += c;
+            }
+        }
+    }
+    out
 }
 
 /// One timed phase: wall and pool CPU seconds.
@@ -139,6 +191,11 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         Some(x) => bail!("--restructure takes on or off, not `{x}`"),
     };
     let shading: Shading = args.shading.parse().map_err(anyhow::Error::msg)?;
+    let kernels: Vec<NodeTest> = args
+        .kernels
+        .iter()
+        .map(|k| k.parse::<NodeTest>().map_err(anyhow::Error::msg))
+        .collect::<anyhow::Result<_>>()?;
     let scene = load_with(
         &args.scene,
         &SceneOptions {
@@ -195,6 +252,14 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
         }
     }
     let kind = accel.node_test();
+    if let Some(k) = kernels.iter().find(|k| k.width() != kind.width()) {
+        bail!(
+            "--kernels {}: a {}-wide test, but the traced tree is {}-wide (--width)",
+            k.name(),
+            k.width(),
+            kind.width()
+        );
+    }
     println!(
         "build (triangles to a traceable {}-wide BVH, first build in this process, thread pool included): {build_ms:.1} ms wall; {} wide nodes, {} leaves, depth {}, {:.1} MiB, SAH {:.2}",
         kind.width(),
@@ -206,8 +271,9 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     );
     let (runs, why) = kind.resolved();
     println!(
-        "traversal: {}-wide, {runs:?} node test ({why})",
-        kind.width()
+        "traversal: {}-wide, {} node test ({why})",
+        kind.width(),
+        runs.name()
     );
     let frame = SceneFrame::of(tris);
     let cam = Camera::protocol(&frame, mode);
@@ -235,6 +301,35 @@ pub fn run(args: &RenderArgs) -> anyhow::Result<()> {
     report("primary", primary.len(), tp, &sp, args.threads);
     report("ao", ao.len(), ta, &sa, args.threads);
     report("bounce", bounce.len(), tb, &sb, args.threads);
+    if !kernels.is_empty() {
+        let passes = args.repeat.max(3);
+        let single = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .context("creating the thread pool")?;
+        let got = single.install(|| compare_kernels(w, &kernels, &primary, &ao, passes));
+        println!(
+            "node tests, one thread, interleaved per {KERNEL_BLOCK}-ray block, {passes} passes:"
+        );
+        let mr = |n: usize, s: f64| (n * passes) as f64 / s * 1e-6;
+        for (k, g) in kernels.iter().zip(&got) {
+            let (runs, why) = k.resolved();
+            println!(
+                "  {:<8} primary {:>7.3} Mrays/s ({:.3}x)  AO {:>7.3} Mrays/s ({:.3}x)  hits {} occluded {}  runs {} ({why})",
+                k.name(),
+                mr(primary.len(), g.0),
+                got[0].0 / g.0,
+                mr(ao.len(), g.1),
+                got[0].1 / g.1,
+                g.2 / passes,
+                g.3 / passes,
+                runs.name(),
+            );
+        }
+        if got.iter().any(|g| (g.2, g.3) != (got[0].2, got[0].3)) {
+            bail!("the node tests disagree on the counts");
+        }
+    }
     if let Some(path) = &args.out {
         let img = pool.install(|| {
             shade(

@@ -84,7 +84,7 @@ pub enum NodeTest {
 
 impl NodeTest {
     /// The fastest test this CPU runs: `Avx2` when it has AVX2, else `Simd`. Also `Avx2` on
-    /// CPUs with AVX-512: the `Avx512` test ran 0.62-0.75x its speed on an AVX-512 Xeon
+    /// CPUs with AVX-512: the `Avx512` test ran 0.62-0.78x its speed on an AVX-512 Xeon
     /// (pbrt-bathroom and stanford-dragon, primary and AO rays, the two interleaved in one
     /// process), so it is chosen only when asked for.
     pub fn fastest() -> NodeTest {
@@ -129,6 +129,40 @@ impl NodeTest {
             NodeTest::Simd => (NodeTest::Scalar, "no SSE off x86-64: scalar test"),
             _ => (self, "scalar reference"),
         }
+    }
+}
+
+impl NodeTest {
+    /// Every test, by its name in [`NodeTest::name`].
+    pub const ALL: [NodeTest; 5] = [
+        NodeTest::Scalar,
+        NodeTest::Simd,
+        NodeTest::Scalar8,
+        NodeTest::Avx2,
+        NodeTest::Avx512,
+    ];
+
+    /// The test's name on the command line: `scalar`, `sse`, `scalar8`, `avx2`, `avx512`.
+    pub fn name(self) -> &'static str {
+        match self {
+            NodeTest::Scalar => "scalar",
+            NodeTest::Simd => "sse",
+            NodeTest::Scalar8 => "scalar8",
+            NodeTest::Avx2 => "avx2",
+            NodeTest::Avx512 => "avx512",
+        }
+    }
+}
+
+impl core::str::FromStr for NodeTest {
+    type Err = String;
+
+    /// A test by its [`NodeTest::name`].
+    fn from_str(s: &str) -> Result<NodeTest, String> {
+        NodeTest::ALL
+            .into_iter()
+            .find(|k| k.name() == s)
+            .ok_or_else(|| format!("unknown node test `{s}` (scalar, sse, scalar8, avx2, avx512)"))
     }
 }
 
