@@ -83,33 +83,41 @@ fn compare_kernels(
     passes: usize,
 ) -> Vec<(f64, f64, usize, usize)> {
     use crate::trace::traverse::{closest, occluded};
-    let n = kinds.len();
-    let mut out = vec![(0.0, 0.0, 0usize, 0usize); n];
+    let s = &mut TraceStats::default();
+    let p = interleaved(kinds.len(), primary, passes, |k, r| {
+        r.iter()
+            .filter(|r| closest::<false>(w, r, kinds[k], s).is_some())
+            .count()
+    });
+    let a = interleaved(kinds.len(), ao, passes, |k, r| {
+        r.iter()
+            .filter(|r| occluded::<false>(w, r, kinds[k], s))
+            .count()
+    });
+    p.iter()
+        .zip(&a)
+        .map(|(&(tp, cp), &(ta, ca))| (tp, ta, cp, ca))
+        .collect()
+}
+
+/// Seconds and result count of each of `n` tracers (`trace(k, block)` traces `block` with
+/// tracer `k` and counts its hits) over `rays`, `passes` times, interleaved per
+/// [`KERNEL_BLOCK`] rays with the order rotating from block to block and pass to pass.
+fn interleaved(
+    n: usize,
+    rays: &[crate::trace::Ray],
+    passes: usize,
+    mut trace: impl FnMut(usize, &[crate::trace::Ray]) -> usize,
+) -> Vec<(f64, usize)> {
+    let mut out = vec![(0.0, 0usize); n];
     for turn in 0..passes {
-        for (bi, b) in primary.chunks(KERNEL_BLOCK).enumerate() {
+        for (bi, b) in rays.chunks(KERNEL_BLOCK).enumerate() {
             for j in 0..n {
                 let k = (bi + j + turn) % n;
-                let s = &mut TraceStats::default();
                 let t = Instant::now();
-                let c = b
-                    .iter()
-                    .filter(|r| closest::<false>(w, r, kinds[k], s).is_some())
-                    .count();
+                let c = trace(k, b);
                 out[k].0 += t.elapsed().as_secs_f64();
-                out[k].2 += c;
-            }
-        }
-        for (bi, b) in ao.chunks(KERNEL_BLOCK).enumerate() {
-            for j in 0..n {
-                let k = (bi + j + turn) % n;
-                let s = &mut TraceStats::default();
-                let t = Instant::now();
-                let c = b
-                    .iter()
-                    .filter(|r| occluded::<false>(w, r, kinds[k], s))
-                    .count();
-                out[k].1 += t.elapsed().as_secs_f64();
-                out[k].3 += c;
+                out[k].1 += c;
             }
         }
     }

@@ -840,62 +840,71 @@ impl PacketTest for SseLanes {
     }
 }
 
-/// AVX2 node test of the 8-wide tree with the SSE packet test (only built with AVX2 present).
+/// The per-ray constants of an 8-wide SIMD node test (AVX2 or AVX-512), as [`WideLanes`]
+/// uses them. Only made and used inside functions compiled with the test's features.
 #[cfg(target_arch = "x86_64")]
-struct AvxLanes(avx::AvxRay, sse::SseRay);
-
-#[cfg(target_arch = "x86_64")]
-impl AvxLanes {
-    /// Both testers of `r`, the SSE one reusing the AVX2 one's origin and `tnear` registers.
-    /// Only call with AVX2 present (inlined into an AVX2 function).
-    #[inline(always)]
-    fn new(r: &PreRay) -> AvxLanes {
-        let avx = avx::AvxRay::new(r);
-        let (org, tnear) = avx.low_org_tnear();
-        AvxLanes(avx, sse::SseRay::with(r, org, tnear))
-    }
+trait WideRay {
+    /// The broadcast constants of `r`.
+    fn new(r: &PreRay) -> Self;
+    /// The low four lanes of the origin and of `tnear` (what the SSE tests broadcast).
+    fn low_org_tnear(&self) -> ([core::arch::x86_64::__m128; 3], core::arch::x86_64::__m128);
+    /// The eight slab tests of `node` up to `tfar`.
+    fn test(&self, node: &WideNode8, tfar: f32) -> LaneHitsN<WIDTH8>;
 }
 
 #[cfg(target_arch = "x86_64")]
-impl Lanes<WIDTH8> for AvxLanes {
-    #[inline(always)]
-    fn test(&self, node: &WideNode8, _: &PreRay, tfar: f32) -> LaneHitsN<WIDTH8> {
-        self.0.test(node, tfar)
-    }
-
-    #[inline(always)]
-    fn leaves(&self, node: &WideNode8) -> u32 {
-        avx::leaf_mask(node)
-    }
+macro_rules! wide_ray {
+    ($t:ty) => {
+        impl WideRay for $t {
+            #[inline(always)]
+            fn new(r: &PreRay) -> Self {
+                <$t>::new(r)
+            }
+            #[inline(always)]
+            fn low_org_tnear(
+                &self,
+            ) -> ([core::arch::x86_64::__m128; 3], core::arch::x86_64::__m128) {
+                <$t>::low_org_tnear(self)
+            }
+            #[inline(always)]
+            fn test(&self, node: &WideNode8, tfar: f32) -> LaneHitsN<WIDTH8> {
+                <$t>::test(self, node, tfar)
+            }
+        }
+    };
 }
+#[cfg(target_arch = "x86_64")]
+wide_ray!(avx::AvxRay);
+#[cfg(target_arch = "x86_64")]
+wide_ray!(avx512::Avx512Ray);
+
+/// An 8-wide SIMD node test of the 8-wide tree with the SSE packet test, the SSE constants
+/// sharing the wide test's origin and `tnear` registers (only built where the CPU has the
+/// wide test's features).
+#[cfg(target_arch = "x86_64")]
+struct WideLanes<T>(T, sse::SseRay);
+
+/// The AVX2 node test with the SSE packet test.
+#[cfg(target_arch = "x86_64")]
+type AvxLanes = WideLanes<avx::AvxRay>;
+/// The AVX-512 node test with the SSE packet test.
+#[cfg(target_arch = "x86_64")]
+type Avx512Lanes = WideLanes<avx512::Avx512Ray>;
 
 #[cfg(target_arch = "x86_64")]
-impl PacketTest for AvxLanes {
+impl<T: WideRay> WideLanes<T> {
+    /// Both testers of `r`. Only call with the wide test's features present (inlined into a
+    /// function compiled with them).
     #[inline(always)]
-    fn sse(&self) -> Option<&sse::SseRay> {
-        Some(&self.1)
-    }
-}
-
-/// AVX-512 node test of the 8-wide tree with the SSE packet test (only built with AVX-512
-/// F/VL/DQ present).
-#[cfg(target_arch = "x86_64")]
-struct Avx512Lanes(avx512::Avx512Ray, sse::SseRay);
-
-#[cfg(target_arch = "x86_64")]
-impl Avx512Lanes {
-    /// Both testers of `r`, the SSE one reusing the AVX-512 one's origin and `tnear`
-    /// registers. Only call with AVX-512 present (inlined into an AVX-512 function).
-    #[inline(always)]
-    fn new(r: &PreRay) -> Avx512Lanes {
-        let t = avx512::Avx512Ray::new(r);
+    fn new(r: &PreRay) -> WideLanes<T> {
+        let t = T::new(r);
         let (org, tnear) = t.low_org_tnear();
-        Avx512Lanes(t, sse::SseRay::with(r, org, tnear))
+        WideLanes(t, sse::SseRay::with(r, org, tnear))
     }
 }
 
 #[cfg(target_arch = "x86_64")]
-impl Lanes<WIDTH8> for Avx512Lanes {
+impl<T: WideRay> Lanes<WIDTH8> for WideLanes<T> {
     #[inline(always)]
     fn test(&self, node: &WideNode8, _: &PreRay, tfar: f32) -> LaneHitsN<WIDTH8> {
         self.0.test(node, tfar)
@@ -908,7 +917,7 @@ impl Lanes<WIDTH8> for Avx512Lanes {
 }
 
 #[cfg(target_arch = "x86_64")]
-impl PacketTest for Avx512Lanes {
+impl<T> PacketTest for WideLanes<T> {
     #[inline(always)]
     fn sse(&self) -> Option<&sse::SseRay> {
         Some(&self.1)
@@ -1114,39 +1123,87 @@ pub fn closest<const STATS: bool>(
     }
 }
 
-/// [`closest`] on the 8-wide tree with the AVX2 node test.
-///
-/// # Safety
-/// The CPU must have AVX2.
+/// The traversals of one 8-wide SIMD node test (`$lanes`, compiled with `$feat`): closest and
+/// any hit over triangles, and over item boxes. Each makes the ray's constants itself, with
+/// the test's features and without the other kernels' registers in its frame.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline(never)]
-unsafe fn closest_avx2<const STATS: bool>(
-    bvh: &WideBvh,
-    ray: &Ray,
-    stats: &mut TraceStats,
-) -> Option<Hit> {
-    let r = PreRay::new(ray);
-    let l = AvxLanes::new(&r);
-    closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
+macro_rules! simd_kernels {
+    ($lanes:ty, $feat:literal, $what:literal,
+     $closest:ident, $occluded:ident, $citems:ident, $oitems:ident) => {
+        #[doc = concat!("[`closest`] on the 8-wide tree with the ", $what, " node test.")]
+        ///
+        /// # Safety
+        #[doc = concat!("The CPU must have ", $what, ".")]
+        #[target_feature(enable = $feat)]
+        #[inline(never)]
+        unsafe fn $closest<const STATS: bool>(
+            bvh: &WideBvh,
+            ray: &Ray,
+            stats: &mut TraceStats,
+        ) -> Option<Hit> {
+            let r = PreRay::new(ray);
+            let l = <$lanes>::new(&r);
+            closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
+        }
+
+        #[doc = concat!("[`occluded`] on the 8-wide tree with the ", $what, " node test.")]
+        ///
+        /// # Safety
+        #[doc = concat!("The CPU must have ", $what, ".")]
+        #[target_feature(enable = $feat)]
+        #[inline(never)]
+        unsafe fn $occluded<const STATS: bool>(
+            bvh: &WideBvh,
+            ray: &Ray,
+            stats: &mut TraceStats,
+        ) -> bool {
+            let r = PreRay::new(ray);
+            let l = <$lanes>::new(&r);
+            occluded_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
+        }
+
+        #[doc = concat!("[`closest_items`] on the 8-wide tree with the ", $what, " node test.")]
+        ///
+        /// # Safety
+        #[doc = concat!("The CPU must have ", $what, ".")]
+        #[target_feature(enable = $feat)]
+        unsafe fn $citems(bvh: &WideBvh, r: &PreRay, visit: &mut impl FnMut(u32, f32) -> f32) {
+            let l = <$lanes>::new(r);
+            closest_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, r, &l, visit)
+        }
+
+        #[doc = concat!("[`occluded_items`] on the 8-wide tree with the ", $what, " node test.")]
+        ///
+        /// # Safety
+        #[doc = concat!("The CPU must have ", $what, ".")]
+        #[target_feature(enable = $feat)]
+        unsafe fn $oitems(bvh: &WideBvh, r: &PreRay, visit: &mut impl FnMut(u32) -> bool) -> bool {
+            let l = <$lanes>::new(r);
+            occluded_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, r, &l, visit)
+        }
+    };
 }
 
-/// [`closest`] on the 8-wide tree with the AVX-512 node test.
-///
-/// # Safety
-/// The CPU must have AVX-512 F, VL and DQ, and AVX2.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx2")]
-#[inline(never)]
-unsafe fn closest_avx512<const STATS: bool>(
-    bvh: &WideBvh,
-    ray: &Ray,
-    stats: &mut TraceStats,
-) -> Option<Hit> {
-    let r = PreRay::new(ray);
-    let l = Avx512Lanes::new(&r);
-    closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
-}
+simd_kernels!(
+    AvxLanes,
+    "avx2",
+    "AVX2",
+    closest_avx2,
+    occluded_avx2,
+    closest_items_avx2,
+    occluded_items_avx2
+);
+#[cfg(target_arch = "x86_64")]
+simd_kernels!(
+    Avx512Lanes,
+    "avx512f,avx512vl,avx512dq,avx2",
+    "AVX-512 F, VL and DQ, and AVX2",
+    closest_avx512,
+    occluded_avx512,
+    closest_items_avx512,
+    occluded_items_avx512
+);
 
 /// [`closest`] on the 4-wide tree with the SSE node test.
 #[cfg(target_arch = "x86_64")]
@@ -1267,13 +1324,48 @@ pub(crate) fn closest_items(
     if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
         return;
     }
+    let visit = &mut visit;
+    match kernel_of(bvh, kind) {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `kernel_of` picks `Avx512` only when the CPU has AVX-512 F/VL/DQ and AVX2.
+        Kernel::Avx512 => unsafe { closest_items_avx512(bvh, r, visit) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `kernel_of` picks `Avx2` only when the CPU has AVX2.
+        Kernel::Avx2 => unsafe { closest_items_avx2(bvh, r, visit) },
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Sse => {
+            let l = SseLanes(sse::SseRay::new(r));
+            closest_items_in::<WIDTH, _>(bvh, &bvh.nodes, r, &l, visit)
+        }
+        Kernel::Scalar8 => closest_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, r, &ScalarLanes, visit),
+        _ => closest_items_in::<WIDTH, _>(bvh, &bvh.nodes, r, &ScalarLanes, visit),
+    }
+}
+
+/// The closest-hit walk of [`closest_items`] over the tree `nodes` of `bvh` with `lanes`.
+#[inline(always)]
+fn closest_items_in<const W: usize, L: Lanes<W>>(
+    bvh: &WideBvh,
+    nodes: &[WideNodeN<W>],
+    r: &PreRay,
+    lanes: &L,
+    visit: &mut impl FnMut(u32, f32) -> f32,
+) {
     let mut best = r.tfar;
     let abs = abs_slack(bvh, r);
     // Each item's own box is tested (an item is often far costlier than a box: a transformed
     // ray through a whole tree, or a user's callback), and the entered ones are visited
     // nearest first while they are within the slackened best distance.
     #[cfg(target_arch = "x86_64")]
-    let sse = sse::SseRay::new(r);
+    let own;
+    #[cfg(target_arch = "x86_64")]
+    let sse = match lanes.sse() {
+        Some(s) => s,
+        None => {
+            own = sse::SseRay::new(r);
+            &own
+        }
+    };
     let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
         let mut near = [(0.0f32, 0u32); LEAF_ITEMS];
         let mut n = 0;
@@ -1283,7 +1375,7 @@ pub(crate) fn closest_items(
             code,
             r,
             #[cfg(target_arch = "x86_64")]
-            &sse,
+            sse,
             || slack(b, abs),
             |id, d| {
                 if n == LEAF_ITEMS {
@@ -1311,38 +1403,7 @@ pub(crate) fn closest_items(
         best
     });
     let stats = &mut TraceStats::default();
-    let (eight, kind) = tree_of(bvh, kind);
-    #[cfg(target_arch = "x86_64")]
-    if eight && kind == NodeTest::Avx2 && avx2_available() {
-        // SAFETY: the CPU has AVX2 (checked just above).
-        return unsafe { closest_items_avx2(bvh, r, stats, &mut leaf) };
-    }
-    #[cfg(target_arch = "x86_64")]
-    if !eight && matches!(kind, NodeTest::Simd | NodeTest::Avx2) {
-        let l = SseLanes(sse::SseRay::new(r));
-        return closest_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &l, stats, &mut leaf);
-    }
-    if eight {
-        closest_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &ScalarLanes, stats, &mut leaf)
-    } else {
-        closest_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &ScalarLanes, stats, &mut leaf)
-    }
-}
-
-/// [`closest_items`] on the 8-wide tree with the AVX2 node test.
-///
-/// # Safety
-/// The CPU must have AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn closest_items_avx2(
-    bvh: &WideBvh,
-    r: &PreRay,
-    stats: &mut TraceStats,
-    leaf: &mut impl LeafVisit<f32>,
-) {
-    let l = AvxLanes::new(r);
-    closest_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &l, stats, leaf)
+    closest_walk::<W, false, L>(bvh, nodes, r, lanes, stats, &mut leaf);
 }
 
 /// The closest-hit walk over one tree: children nearest first, a node skipped when its entry
@@ -1493,40 +1554,6 @@ pub fn occluded<const STATS: bool>(
     }
 }
 
-/// [`occluded`] on the 8-wide tree with the AVX2 node test.
-///
-/// # Safety
-/// The CPU must have AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-#[inline(never)]
-unsafe fn occluded_avx2<const STATS: bool>(
-    bvh: &WideBvh,
-    ray: &Ray,
-    stats: &mut TraceStats,
-) -> bool {
-    let r = PreRay::new(ray);
-    let l = AvxLanes::new(&r);
-    occluded_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
-}
-
-/// [`occluded`] on the 8-wide tree with the AVX-512 node test.
-///
-/// # Safety
-/// The CPU must have AVX-512 F, VL and DQ, and AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx512vl,avx512dq,avx2")]
-#[inline(never)]
-unsafe fn occluded_avx512<const STATS: bool>(
-    bvh: &WideBvh,
-    ray: &Ray,
-    stats: &mut TraceStats,
-) -> bool {
-    let r = PreRay::new(ray);
-    let l = Avx512Lanes::new(&r);
-    occluded_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
-}
-
 /// [`occluded`] on the 4-wide tree with the SSE node test.
 #[cfg(target_arch = "x86_64")]
 #[inline(never)]
@@ -1573,9 +1600,44 @@ pub(crate) fn occluded_items(
     if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
         return false;
     }
+    let visit = &mut visit;
+    match kernel_of(bvh, kind) {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `kernel_of` picks `Avx512` only when the CPU has AVX-512 F/VL/DQ and AVX2.
+        Kernel::Avx512 => unsafe { occluded_items_avx512(bvh, r, visit) },
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `kernel_of` picks `Avx2` only when the CPU has AVX2.
+        Kernel::Avx2 => unsafe { occluded_items_avx2(bvh, r, visit) },
+        #[cfg(target_arch = "x86_64")]
+        Kernel::Sse => {
+            let l = SseLanes(sse::SseRay::new(r));
+            occluded_items_in::<WIDTH, _>(bvh, &bvh.nodes, r, &l, visit)
+        }
+        Kernel::Scalar8 => occluded_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, r, &ScalarLanes, visit),
+        _ => occluded_items_in::<WIDTH, _>(bvh, &bvh.nodes, r, &ScalarLanes, visit),
+    }
+}
+
+/// The any-hit walk of [`occluded_items`] over the tree `nodes` of `bvh` with `lanes`.
+#[inline(always)]
+fn occluded_items_in<const W: usize, L: Lanes<W>>(
+    bvh: &WideBvh,
+    nodes: &[WideNodeN<W>],
+    r: &PreRay,
+    lanes: &L,
+    visit: &mut impl FnMut(u32) -> bool,
+) -> bool {
     let cull = slack(r.tfar, abs_slack(bvh, r));
     #[cfg(target_arch = "x86_64")]
-    let sse = sse::SseRay::new(r);
+    let own;
+    #[cfg(target_arch = "x86_64")]
+    let sse = match lanes.sse() {
+        Some(s) => s,
+        None => {
+            own = sse::SseRay::new(r);
+            &own
+        }
+    };
     let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
         let mut hit = false;
         leaf_items(
@@ -1583,45 +1645,14 @@ pub(crate) fn occluded_items(
             code,
             r,
             #[cfg(target_arch = "x86_64")]
-            &sse,
+            sse,
             || cull,
             |id, _| hit = hit || visit(id),
         );
         hit
     });
     let stats = &mut TraceStats::default();
-    let (eight, kind) = tree_of(bvh, kind);
-    #[cfg(target_arch = "x86_64")]
-    if eight && kind == NodeTest::Avx2 && avx2_available() {
-        // SAFETY: the CPU has AVX2 (checked just above).
-        return unsafe { occluded_items_avx2(bvh, r, stats, &mut leaf) };
-    }
-    #[cfg(target_arch = "x86_64")]
-    if !eight && matches!(kind, NodeTest::Simd | NodeTest::Avx2) {
-        let l = SseLanes(sse::SseRay::new(r));
-        return occluded_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &l, stats, &mut leaf);
-    }
-    if eight {
-        occluded_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &ScalarLanes, stats, &mut leaf)
-    } else {
-        occluded_walk::<WIDTH, false, _>(bvh, &bvh.nodes, r, &ScalarLanes, stats, &mut leaf)
-    }
-}
-
-/// [`occluded_items`] on the 8-wide tree with the AVX2 node test.
-///
-/// # Safety
-/// The CPU must have AVX2.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn occluded_items_avx2(
-    bvh: &WideBvh,
-    r: &PreRay,
-    stats: &mut TraceStats,
-    leaf: &mut impl LeafVisit<bool>,
-) -> bool {
-    let l = AvxLanes::new(r);
-    occluded_walk::<WIDTH8, false, _>(bvh, &bvh.nodes8, r, &l, stats, leaf)
+    occluded_walk::<W, false, L>(bvh, nodes, r, lanes, stats, &mut leaf)
 }
 
 /// The any-hit walk over one tree: `leaf(code, stats)` is true when leaf `code` holds a hit,
