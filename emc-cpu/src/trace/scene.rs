@@ -481,8 +481,7 @@ impl Scene {
         }
         match (&self.top, self.committed) {
             (Some(top), true) => {
-                let r = PreRay::new(ray);
-                closest_items(top.wide_bvh(), &r, top.node_test(), |id, t| {
+                closest_items(top.wide_bvh(), ray, top.node_test(), |id, t| {
                     self.geom_closest(id, ray, t, instance, best);
                     best.map_or(t, |h| h.t)
                 });
@@ -517,9 +516,8 @@ impl Scene {
                 }
             }
             Kind::Custom(c) => {
-                let pr = PreRay::new(&r);
                 let Some(tree) = &c.tree else { return };
-                closest_items(tree.wide_bvh(), &pr, tree.node_test(), |prim, t| {
+                closest_items(tree.wide_bvh(), &r, tree.node_test(), |prim, t| {
                     let q = Ray { tfar: t, ..r };
                     if let Some(ch) = (c.intersect)(&q, prim) {
                         if ch.t >= q.tnear && ch.t <= t {
@@ -551,16 +549,18 @@ impl Scene {
         if self.geoms.len() == 1 {
             return self.geom_any(0, ray);
         }
-        let r = PreRay::new(ray);
         match (&self.top, self.committed) {
-            (Some(top), true) => occluded_items(top.wide_bvh(), &r, top.node_test(), |id| {
+            (Some(top), true) => occluded_items(top.wide_bvh(), ray, top.node_test(), |id| {
                 self.geom_any(id, ray)
             }),
-            _ => (0..self.geoms.len() as u32).any(|id| {
-                let b = &self.geoms[id as usize].bounds;
-                slab_test(&r, b.min.to_array(), b.max.to_array(), ray.tfar).is_some()
-                    && self.geom_any(id, ray)
-            }),
+            _ => {
+                let r = PreRay::new(ray);
+                (0..self.geoms.len() as u32).any(|id| {
+                    let b = &self.geoms[id as usize].bounds;
+                    slab_test(&r, b.min.to_array(), b.max.to_array(), ray.tfar).is_some()
+                        && self.geom_any(id, ray)
+                })
+            }
         }
     }
 
@@ -574,9 +574,8 @@ impl Scene {
         match &g.kind {
             Kind::Mesh(a) => a.occluded(ray),
             Kind::Custom(c) => {
-                let pr = PreRay::new(ray);
                 let Some(tree) = &c.tree else { return false };
-                occluded_items(tree.wide_bvh(), &pr, tree.node_test(), |prim| {
+                occluded_items(tree.wide_bvh(), ray, tree.node_test(), |prim| {
                     (c.intersect)(ray, prim).is_some_and(|h| h.t >= ray.tnear && h.t <= ray.tfar)
                 })
             }

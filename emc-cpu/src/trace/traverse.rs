@@ -1167,9 +1167,10 @@ macro_rules! simd_kernels {
         /// # Safety
         #[doc = concat!("The CPU must have ", $what, ".")]
         #[target_feature(enable = $feat)]
-        unsafe fn $citems(bvh: &WideBvh, r: &PreRay, visit: &mut impl FnMut(u32, f32) -> f32) {
-            let l = <$lanes>::new(r);
-            closest_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, r, &l, visit)
+        unsafe fn $citems(bvh: &WideBvh, ray: &Ray, visit: &mut impl FnMut(u32, f32) -> f32) {
+            let r = PreRay::new(ray);
+            let l = <$lanes>::new(&r);
+            closest_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, &r, &l, visit)
         }
 
         #[doc = concat!("[`occluded_items`] on the 8-wide tree with the ", $what, " node test.")]
@@ -1177,9 +1178,10 @@ macro_rules! simd_kernels {
         /// # Safety
         #[doc = concat!("The CPU must have ", $what, ".")]
         #[target_feature(enable = $feat)]
-        unsafe fn $oitems(bvh: &WideBvh, r: &PreRay, visit: &mut impl FnMut(u32) -> bool) -> bool {
-            let l = <$lanes>::new(r);
-            occluded_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, r, &l, visit)
+        unsafe fn $oitems(bvh: &WideBvh, ray: &Ray, visit: &mut impl FnMut(u32) -> bool) -> bool {
+            let r = PreRay::new(ray);
+            let l = <$lanes>::new(&r);
+            occluded_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, &r, &l, visit)
         }
     };
 }
@@ -1317,7 +1319,7 @@ const LEAF_ITEMS: usize = 16;
 #[inline]
 pub(crate) fn closest_items(
     bvh: &WideBvh,
-    r: &PreRay,
+    ray: &Ray,
     kind: NodeTest,
     mut visit: impl FnMut(u32, f32) -> f32,
 ) {
@@ -1328,17 +1330,24 @@ pub(crate) fn closest_items(
     match kernel_of(bvh, kind) {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `kernel_of` picks `Avx512` only when the CPU has AVX-512 F/VL/DQ and AVX2.
-        Kernel::Avx512 => unsafe { closest_items_avx512(bvh, r, visit) },
+        Kernel::Avx512 => unsafe { closest_items_avx512(bvh, ray, visit) },
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `kernel_of` picks `Avx2` only when the CPU has AVX2.
-        Kernel::Avx2 => unsafe { closest_items_avx2(bvh, r, visit) },
+        Kernel::Avx2 => unsafe { closest_items_avx2(bvh, ray, visit) },
         #[cfg(target_arch = "x86_64")]
         Kernel::Sse => {
-            let l = SseLanes(sse::SseRay::new(r));
-            closest_items_in::<WIDTH, _>(bvh, &bvh.nodes, r, &l, visit)
+            let r = PreRay::new(ray);
+            let l = SseLanes(sse::SseRay::new(&r));
+            closest_items_in::<WIDTH, _>(bvh, &bvh.nodes, &r, &l, visit)
         }
-        Kernel::Scalar8 => closest_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, r, &ScalarLanes, visit),
-        _ => closest_items_in::<WIDTH, _>(bvh, &bvh.nodes, r, &ScalarLanes, visit),
+        Kernel::Scalar8 => {
+            let r = PreRay::new(ray);
+            closest_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, &r, &ScalarLanes, visit)
+        }
+        _ => {
+            let r = PreRay::new(ray);
+            closest_items_in::<WIDTH, _>(bvh, &bvh.nodes, &r, &ScalarLanes, visit)
+        }
     }
 }
 
@@ -1593,7 +1602,7 @@ fn occluded_in<const W: usize, const STATS: bool, L: Lanes<W>>(
 #[inline]
 pub(crate) fn occluded_items(
     bvh: &WideBvh,
-    r: &PreRay,
+    ray: &Ray,
     kind: NodeTest,
     mut visit: impl FnMut(u32) -> bool,
 ) -> bool {
@@ -1604,17 +1613,24 @@ pub(crate) fn occluded_items(
     match kernel_of(bvh, kind) {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `kernel_of` picks `Avx512` only when the CPU has AVX-512 F/VL/DQ and AVX2.
-        Kernel::Avx512 => unsafe { occluded_items_avx512(bvh, r, visit) },
+        Kernel::Avx512 => unsafe { occluded_items_avx512(bvh, ray, visit) },
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `kernel_of` picks `Avx2` only when the CPU has AVX2.
-        Kernel::Avx2 => unsafe { occluded_items_avx2(bvh, r, visit) },
+        Kernel::Avx2 => unsafe { occluded_items_avx2(bvh, ray, visit) },
         #[cfg(target_arch = "x86_64")]
         Kernel::Sse => {
-            let l = SseLanes(sse::SseRay::new(r));
-            occluded_items_in::<WIDTH, _>(bvh, &bvh.nodes, r, &l, visit)
+            let r = PreRay::new(ray);
+            let l = SseLanes(sse::SseRay::new(&r));
+            occluded_items_in::<WIDTH, _>(bvh, &bvh.nodes, &r, &l, visit)
         }
-        Kernel::Scalar8 => occluded_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, r, &ScalarLanes, visit),
-        _ => occluded_items_in::<WIDTH, _>(bvh, &bvh.nodes, r, &ScalarLanes, visit),
+        Kernel::Scalar8 => {
+            let r = PreRay::new(ray);
+            occluded_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, &r, &ScalarLanes, visit)
+        }
+        _ => {
+            let r = PreRay::new(ray);
+            occluded_items_in::<WIDTH, _>(bvh, &bvh.nodes, &r, &ScalarLanes, visit)
+        }
     }
 }
 
