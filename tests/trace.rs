@@ -13,8 +13,8 @@ use emc_cpu::scene::{self, Mesh, SceneOptions};
 use emc_cpu::trace::image::{shade, Image, Shading};
 use emc_cpu::trace::intersect::{brute_force_closest, brute_force_occluded, slab_test, PreRay};
 use emc_cpu::trace::traverse::{
-    avx2_available, avx512_available, closest, node_test_avx2, node_test_avx512, node_test_scalar,
-    node_test_simd, occluded,
+    avx2_available, avx512_available, closest, node_test_avx2, node_test_avx2_octant,
+    node_test_avx512, node_test_scalar, node_test_simd, occluded,
 };
 use emc_cpu::trace::wide::{WideNodeN, MAX_DEPTH};
 use emc_cpu::trace::workload::{
@@ -310,6 +310,14 @@ fn avx2_node_test_equals_scalar_bit_for_bit() {
         println!("no AVX2 on this CPU: node_test_avx2 is the scalar test itself");
     }
     check_node_test::<8>(node_test_avx2);
+}
+
+#[test]
+fn avx2_octant_node_tests_equal_scalar_bit_for_bit() {
+    if !avx2_available() {
+        println!("no AVX2 on this CPU: node_test_avx2_octant is the scalar test itself");
+    }
+    check_node_test::<8>(node_test_avx2_octant);
 }
 
 #[test]
