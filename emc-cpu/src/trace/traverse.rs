@@ -437,7 +437,7 @@ mod avx {
             tfar: f32,
         ) -> LaneHitsN<WIDTH8> {
             debug_assert!((0..3).all(|a| near[a] / 16 == a && far[a] / 16 == a));
-            debug_assert!((0..3).all(|a| near[a] % 8 == 0 && far[a] == near[a] ^ 8));
+            debug_assert!((0..3).all(|a| near[a].is_multiple_of(8) && far[a] == near[a] ^ 8));
             // SAFETY: only reached with AVX2 enabled and detected. `planes` is six rows of
             // eight floats, contiguous, in a 64-byte aligned node; `near[a]` and `far[a]` are
             // the two rows of axis `a` (multiples of 8 below 48, as the callers make them),
@@ -1028,7 +1028,7 @@ unsafe fn closest_avx2<const STATS: bool>(
     stats: &mut TraceStats,
 ) -> Option<Hit> {
     let r = PreRay::new(ray);
-    // SAFETY (all arms): the CPU has AVX2, as this function requires.
+    // SAFETY: every arm needs AVX2, which the caller of this function guarantees.
     unsafe {
         match octant(&r) {
             0 => closest_oct::<0, STATS>(bvh, &r, stats),
