@@ -379,6 +379,48 @@ mod avx512 {
     }
 }
 
+/// `$e` with the const `$o` set to the octant of ray `$r` (see `octant`): one instance of `$e`
+/// per octant, the ray's picked by one `match`.
+#[cfg(target_arch = "x86_64")]
+macro_rules! by_octant {
+    ($r:expr, $o:ident => $e:expr) => {
+        match crate::trace::traverse::octant($r) {
+            0 => {
+                const $o: usize = 0;
+                $e
+            }
+            1 => {
+                const $o: usize = 1;
+                $e
+            }
+            2 => {
+                const $o: usize = 2;
+                $e
+            }
+            3 => {
+                const $o: usize = 3;
+                $e
+            }
+            4 => {
+                const $o: usize = 4;
+                $e
+            }
+            5 => {
+                const $o: usize = 5;
+                $e
+            }
+            6 => {
+                const $o: usize = 6;
+                $e
+            }
+            _ => {
+                const $o: usize = 7;
+                $e
+            }
+        }
+    };
+}
+
 #[cfg(target_arch = "x86_64")]
 mod avx {
     use core::arch::x86_64::*;
@@ -566,16 +608,7 @@ mod avx {
     /// The CPU must have AVX2.
     #[target_feature(enable = "avx2")]
     pub unsafe fn node_test_octant(node: &WideNode8, r: &PreRay, tfar: f32) -> LaneHitsN<WIDTH8> {
-        match super::octant(r) {
-            0 => OctRay::<0>::new(r).test(node, tfar),
-            1 => OctRay::<1>::new(r).test(node, tfar),
-            2 => OctRay::<2>::new(r).test(node, tfar),
-            3 => OctRay::<3>::new(r).test(node, tfar),
-            4 => OctRay::<4>::new(r).test(node, tfar),
-            5 => OctRay::<5>::new(r).test(node, tfar),
-            6 => OctRay::<6>::new(r).test(node, tfar),
-            _ => OctRay::<7>::new(r).test(node, tfar),
-        }
+        by_octant!(r, O => OctRay::<O>::new(r).test(node, tfar))
     }
 }
 
@@ -1029,18 +1062,7 @@ unsafe fn closest_avx2<const STATS: bool>(
 ) -> Option<Hit> {
     let r = PreRay::new(ray);
     // SAFETY: every arm needs AVX2, which the caller of this function guarantees.
-    unsafe {
-        match octant(&r) {
-            0 => closest_oct::<0, STATS>(bvh, &r, stats),
-            1 => closest_oct::<1, STATS>(bvh, &r, stats),
-            2 => closest_oct::<2, STATS>(bvh, &r, stats),
-            3 => closest_oct::<3, STATS>(bvh, &r, stats),
-            4 => closest_oct::<4, STATS>(bvh, &r, stats),
-            5 => closest_oct::<5, STATS>(bvh, &r, stats),
-            6 => closest_oct::<6, STATS>(bvh, &r, stats),
-            _ => closest_oct::<7, STATS>(bvh, &r, stats),
-        }
-    }
+    unsafe { by_octant!(&r, O => closest_oct::<O, STATS>(bvh, &r, stats)) }
 }
 
 /// An 8-wide SIMD node test of the 8-wide tree with the SSE packet test, the SSE constants
@@ -1470,6 +1492,36 @@ fn leaf_items(
     }
 }
 
+/// The item-tree walk `$walk` (generic over width and node test) of `$ray` in `$bvh` with the
+/// kernel `$kind` resolves to (see [`kernel_of`]): the SIMD ones through their target-feature
+/// functions `$avx512` and `$avx2`, which make the ray's constants themselves.
+macro_rules! items_by_kernel {
+    ($bvh:ident, $ray:ident, $kind:ident, $visit:ident, $walk:ident, $avx512:ident, $avx2:ident) => {
+        match kernel_of($bvh, $kind) {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `kernel_of` picks `Avx512` only when the CPU has AVX-512 F/VL/DQ and AVX2.
+            Kernel::Avx512 => unsafe { $avx512($bvh, $ray, $visit) },
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `kernel_of` picks `Avx2` only when the CPU has AVX2.
+            Kernel::Avx2 => unsafe { $avx2($bvh, $ray, $visit) },
+            #[cfg(target_arch = "x86_64")]
+            Kernel::Sse => {
+                let r = PreRay::new($ray);
+                let l = SseLanes(sse::SseRay::new(&r));
+                $walk::<WIDTH, _>($bvh, &$bvh.nodes, &r, &l, $visit)
+            }
+            Kernel::Scalar8 => {
+                let r = PreRay::new($ray);
+                $walk::<WIDTH8, _>($bvh, &$bvh.nodes8, &r, &ScalarLanes, $visit)
+            }
+            _ => {
+                let r = PreRay::new($ray);
+                $walk::<WIDTH, _>($bvh, &$bvh.nodes, &r, &ScalarLanes, $visit)
+            }
+        }
+    };
+}
+
 /// Items of one leaf sorted by entry distance before they are visited (a leaf of the fast
 /// builder holds at most eight; more are visited as they come).
 const LEAF_ITEMS: usize = 16;
@@ -1490,28 +1542,15 @@ pub(crate) fn closest_items(
         return;
     }
     let visit = &mut visit;
-    match kernel_of(bvh, kind) {
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: `kernel_of` picks `Avx512` only when the CPU has AVX-512 F/VL/DQ and AVX2.
-        Kernel::Avx512 => unsafe { closest_items_avx512(bvh, ray, visit) },
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: `kernel_of` picks `Avx2` only when the CPU has AVX2.
-        Kernel::Avx2 => unsafe { closest_items_avx2(bvh, ray, visit) },
-        #[cfg(target_arch = "x86_64")]
-        Kernel::Sse => {
-            let r = PreRay::new(ray);
-            let l = SseLanes(sse::SseRay::new(&r));
-            closest_items_in::<WIDTH, _>(bvh, &bvh.nodes, &r, &l, visit)
-        }
-        Kernel::Scalar8 => {
-            let r = PreRay::new(ray);
-            closest_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, &r, &ScalarLanes, visit)
-        }
-        _ => {
-            let r = PreRay::new(ray);
-            closest_items_in::<WIDTH, _>(bvh, &bvh.nodes, &r, &ScalarLanes, visit)
-        }
-    }
+    items_by_kernel!(
+        bvh,
+        ray,
+        kind,
+        visit,
+        closest_items_in,
+        closest_items_avx512,
+        closest_items_avx2
+    )
 }
 
 /// The closest-hit walk of [`closest_items`] over the tree `nodes` of `bvh` with `lanes`.
@@ -1528,16 +1567,9 @@ fn closest_items_in<const W: usize, L: Lanes<W>>(
     // Each item's own box is tested (an item is often far costlier than a box: a transformed
     // ray through a whole tree, or a user's callback), and the entered ones are visited
     // nearest first while they are within the slackened best distance.
+    // The leaves' item boxes take the SSE test (the walk's own, or made here for a scalar walk).
     #[cfg(target_arch = "x86_64")]
-    let own;
-    #[cfg(target_arch = "x86_64")]
-    let sse = match lanes.sse() {
-        Some(s) => s,
-        None => {
-            own = sse::SseRay::new(r);
-            &own
-        }
-    };
+    let sse = lanes.sse().copied().unwrap_or_else(|| sse::SseRay::new(r));
     let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
         let mut near = [(0.0f32, 0u32); LEAF_ITEMS];
         let mut n = 0;
@@ -1547,7 +1579,7 @@ fn closest_items_in<const W: usize, L: Lanes<W>>(
             code,
             r,
             #[cfg(target_arch = "x86_64")]
-            sse,
+            &sse,
             || slack(b, abs),
             |id, d| {
                 if n == LEAF_ITEMS {
@@ -1773,28 +1805,15 @@ pub(crate) fn occluded_items(
         return false;
     }
     let visit = &mut visit;
-    match kernel_of(bvh, kind) {
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: `kernel_of` picks `Avx512` only when the CPU has AVX-512 F/VL/DQ and AVX2.
-        Kernel::Avx512 => unsafe { occluded_items_avx512(bvh, ray, visit) },
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: `kernel_of` picks `Avx2` only when the CPU has AVX2.
-        Kernel::Avx2 => unsafe { occluded_items_avx2(bvh, ray, visit) },
-        #[cfg(target_arch = "x86_64")]
-        Kernel::Sse => {
-            let r = PreRay::new(ray);
-            let l = SseLanes(sse::SseRay::new(&r));
-            occluded_items_in::<WIDTH, _>(bvh, &bvh.nodes, &r, &l, visit)
-        }
-        Kernel::Scalar8 => {
-            let r = PreRay::new(ray);
-            occluded_items_in::<WIDTH8, _>(bvh, &bvh.nodes8, &r, &ScalarLanes, visit)
-        }
-        _ => {
-            let r = PreRay::new(ray);
-            occluded_items_in::<WIDTH, _>(bvh, &bvh.nodes, &r, &ScalarLanes, visit)
-        }
-    }
+    items_by_kernel!(
+        bvh,
+        ray,
+        kind,
+        visit,
+        occluded_items_in,
+        occluded_items_avx512,
+        occluded_items_avx2
+    )
 }
 
 /// The any-hit walk of [`occluded_items`] over the tree `nodes` of `bvh` with `lanes`.
@@ -1807,16 +1826,9 @@ fn occluded_items_in<const W: usize, L: Lanes<W>>(
     visit: &mut impl FnMut(u32) -> bool,
 ) -> bool {
     let cull = slack(r.tfar, abs_slack(bvh, r));
+    // The leaves' item boxes take the SSE test (the walk's own, or made here for a scalar walk).
     #[cfg(target_arch = "x86_64")]
-    let own;
-    #[cfg(target_arch = "x86_64")]
-    let sse = match lanes.sse() {
-        Some(s) => s,
-        None => {
-            own = sse::SseRay::new(r);
-            &own
-        }
-    };
+    let sse = lanes.sse().copied().unwrap_or_else(|| sse::SseRay::new(r));
     let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
         let mut hit = false;
         leaf_items(
@@ -1824,7 +1836,7 @@ fn occluded_items_in<const W: usize, L: Lanes<W>>(
             code,
             r,
             #[cfg(target_arch = "x86_64")]
-            sse,
+            &sse,
             || cull,
             |id, _| hit = hit || visit(id),
         );
