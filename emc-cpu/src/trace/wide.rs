@@ -1,10 +1,10 @@
 //! The tracer's acceleration structure: any validated BVH2 collapsed into a 4-wide BVH (one SSE
 //! register per plane) and an 8-wide BVH (one AVX2 register per plane), child boxes SoA, nodes
 //! and triangles in depth-first order, with the depth bound that sizes every stack checked here.
-#![forbid(unsafe_code)]
+#![deny(unsafe_code)]
 
 use emc_core::Aabb;
-use glam::Vec3;
+use glam::{Vec3, Vec3A};
 
 use crate::bvh::Bvh;
 use crate::trace::TraceError;
@@ -66,6 +66,60 @@ impl TriPacket {
         TriPacket {
             v: [[0.0; WIDTH]; 9],
             id: [0; WIDTH],
+            count,
+            last: last as u32,
+            _pad: [0; 2],
+        }
+    }
+
+    /// The packet of triangles `tris` (corners as SIMD lanes, `w` ignored) with ids `ids`, of
+    /// which the first `count` are real (the rest repeat a real one); `last` on the leaf's
+    /// last packet. On x86-64 the corners are transposed in registers, lanes to rows:
+    ///
+    /// ```text
+    ///   a = x0 y0 z0 ·   unpacklo(a, b) = x0 x1 y0 y1   movelh = x0 x1 x2 x3  (row x)
+    ///   b = x1 y1 z1 ·   unpacklo(c, d) = x2 x3 y2 y3   movehl = y0 y1 y2 y3  (row y)
+    ///   c = x2 y2 z2 ·   unpackhi(a, b) = z0 z1 · ·     movelh = z0 z1 z2 z3  (row z)
+    ///   d = x3 y3 z3 ·   unpackhi(c, d) = z2 z3 · ·
+    /// ```
+    #[inline(always)]
+    pub fn from_lanes(
+        tris: [&[Vec3A; 3]; WIDTH],
+        ids: [u32; WIDTH],
+        count: u32,
+        last: bool,
+    ) -> TriPacket {
+        #[cfg(target_arch = "x86_64")]
+        #[allow(unsafe_code)]
+        let v = {
+            use core::arch::x86_64::{
+                __m128, _mm_movehl_ps, _mm_movelh_ps, _mm_unpackhi_ps, _mm_unpacklo_ps,
+            };
+            let mut v = [[0.0f32; WIDTH]; 9];
+            for j in 0..3 {
+                let [a, b, c, d]: [__m128; 4] = tris.map(|t| t[j].into());
+                // SAFETY: SSE is part of the x86-64 baseline; register shuffles only.
+                let rows = unsafe {
+                    let (ab, cd) = (_mm_unpacklo_ps(a, b), _mm_unpacklo_ps(c, d));
+                    let (abz, cdz) = (_mm_unpackhi_ps(a, b), _mm_unpackhi_ps(c, d));
+                    [
+                        _mm_movelh_ps(ab, cd),
+                        _mm_movehl_ps(cd, ab),
+                        _mm_movelh_ps(abz, cdz),
+                    ]
+                };
+                for (a, row) in rows.into_iter().enumerate() {
+                    v[3 * j + a] = glam::Vec4::from(row).to_array();
+                }
+            }
+            v
+        };
+        #[cfg(not(target_arch = "x86_64"))]
+        let v: [[f32; WIDTH]; 9] =
+            core::array::from_fn(|r| core::array::from_fn(|l| tris[l][r / 3][r % 3]));
+        TriPacket {
+            v,
+            id: ids,
             count,
             last: last as u32,
             _pad: [0; 2],
@@ -804,25 +858,15 @@ fn emit_leaf(
     let chunks = prims.chunks(WIDTH);
     let k = chunks.len();
     for (c, chunk) in chunks.enumerate() {
-        let mut p = TriPacket {
-            v: [[0.0; WIDTH]; 9],
-            id: [0; WIDTH],
-            count: chunk.len() as u32,
-            last: (c + 1 == k) as u32,
-            _pad: [0; 2],
-        };
-        for lane in 0..WIDTH {
-            let id = chunk[lane.min(chunk.len() - 1)];
-            let t = &tris[id as usize];
-            for (j, vert) in t.iter().enumerate() {
-                let a = vert.to_array();
-                for (ax, &x) in a.iter().enumerate() {
-                    p.v[3 * j + ax][lane] = x;
-                }
-            }
-            p.id[lane] = id;
-        }
-        packets.push(p);
+        let lane = |l: usize| chunk[l.min(chunk.len() - 1)];
+        let corners: [[Vec3A; 3]; WIDTH] =
+            core::array::from_fn(|l| tris[lane(l) as usize].map(Vec3A::from));
+        packets.push(TriPacket::from_lanes(
+            core::array::from_fn(|l| &corners[l]),
+            core::array::from_fn(lane),
+            chunk.len() as u32,
+            c + 1 == k,
+        ));
     }
     LEAF | first
 }

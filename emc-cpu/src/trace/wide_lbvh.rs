@@ -361,18 +361,13 @@ fn emit_leaf<const W: usize>(
     for j in 0..k {
         let lo = j * WIDTH;
         let real = (c - lo).min(WIDTH);
-        // Written in place (no packet-sized copy through the stack).
-        out.packets.push(TriPacket::blank(real as u32, j + 1 == k));
-        let p = out.packets.last_mut().expect("just pushed");
-        for lane in 0..WIDTH {
-            let q = lo + lane.min(real - 1);
-            for (v, corner) in tris[q].iter().enumerate() {
-                p.v[3 * v][lane] = corner.x;
-                p.v[3 * v + 1][lane] = corner.y;
-                p.v[3 * v + 2][lane] = corner.z;
-            }
-            p.id[lane] = ids[q];
-        }
+        let lane = |l: usize| lo + l.min(real - 1);
+        out.packets.push(TriPacket::from_lanes(
+            core::array::from_fn(|l| &tris[lane(l)]),
+            core::array::from_fn(|l| ids[lane(l)]),
+            real as u32,
+            j + 1 == k,
+        ));
     }
     out.leaves += 1;
     (code, COST_PACKET * area * k as f32)
