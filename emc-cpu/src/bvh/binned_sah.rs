@@ -1153,7 +1153,11 @@ mod simd {
         let origin = _mm256_setr_pd(map.origin[0], map.origin[1], map.origin[2], 0.0);
         let scale = _mm256_setr_pd(map.scale[0], map.scale[1], map.scale[2], 0.0);
         let top = _mm256_set1_pd((map.bins - 1) as f64);
-        let mut used = [0u64; 3];
+        // Two passes: the tags first, then the bins. In one pass the bin addresses come at
+        // the end of a long chain (centroid, scale, convert, pack), and a primitive in the
+        // same bins as the one before (the rule in a coherent mesh) waits for its stores;
+        // read back from the tags, the addresses are known early (dragon quality build
+        // 5-10% faster, alternating in one process).
         for (r, t) in refs.iter().zip(tags.iter_mut()) {
             // SAFETY: AVX2 is enabled; `centroid` reads `r` only.
             let c = unsafe { centroid(r) };
@@ -1163,8 +1167,11 @@ mod simd {
             let i = _mm256_cvttpd_epi32(b);
             // Lane 3 is (0 − 0) · 0 = 0: the tag's fourth byte is 0.
             let packed = _mm_packus_epi16(_mm_packus_epi32(i, i), _mm_setzero_si128());
-            let w = _mm_cvtsi128_si32(packed) as u32;
-            *t = w.to_le_bytes();
+            *t = (_mm_cvtsi128_si32(packed) as u32).to_le_bytes();
+        }
+        let mut used = [0u64; 3];
+        for (r, t) in refs.iter().zip(tags.iter()) {
+            let w = u32::from_le_bytes(*t);
             let (lo, hi) = r.simd();
             for (a, u) in used.iter_mut().enumerate() {
                 let k = (w >> (8 * a)) as usize & BIN_MASK;
