@@ -216,8 +216,8 @@ fn rebuild_equals_a_fresh_build_of_the_moved_mesh() {
             &SceneOptions::default().with_prims(5000),
         )
         .unwrap();
-        for preset in PRESETS {
-            let mut a = build(&s, preset, 8);
+        for (preset, width) in PRESETS.into_iter().flat_map(|p| [(p, 8), (p, 4)]) {
+            let mut a = build(&s, preset, width);
             for frame in 1..=3 {
                 let v = moved(&s.vertices, frame as f32);
                 a.rebuild(&v).unwrap();
@@ -225,11 +225,12 @@ fn rebuild_equals_a_fresh_build_of_the_moved_mesh() {
                     vertices: v.clone(),
                     ..s.clone()
                 };
-                let fresh = build(&fresh_scene, preset, 8);
+                let fresh = build(&fresh_scene, preset, width);
                 let (x, y) = (a.wide_bvh(), fresh.wide_bvh());
                 assert!(
                     x.nodes8 == y.nodes8 && x.nodes == y.nodes && x.packets == y.packets,
-                    "{name} {preset:?} frame {frame}: rebuild differs from a fresh build"
+                    "{name} {preset:?} width {width} frame {frame}: rebuild differs from a \
+                     fresh build"
                 );
                 a.wide_bvh()
                     .validate(a.triangle_count(), |i| a.triangle(i))
@@ -237,7 +238,7 @@ fn rebuild_equals_a_fresh_build_of_the_moved_mesh() {
                 let tris = triangles(&fresh_scene);
                 let rays = rays_for(&tris, 2000, frame);
                 check(
-                    &format!("{name} {preset:?} frame {frame}"),
+                    &format!("{name} {preset:?} width {width} frame {frame}"),
                     &a,
                     &rays,
                     &brute_force(&tris, &rays),

@@ -234,6 +234,8 @@ pub struct Accel {
     scratch4: FastScratch<WIDTH>,
     scratch8: FastScratch<WIDTH8>,
     phases: FastTimes,
+    /// The other builders' triangle list and boxes, kept for the next rebuild.
+    bvh2_scratch: (Vec<[Vec3; 3]>, Vec<Aabb>),
     /// The level order of [`Accel::refit`] and whether every vertex is referenced, made at
     /// the first refit after a build.
     refit: Option<(RefitPlan, bool)>,
@@ -261,6 +263,7 @@ impl Accel {
             scratch4: FastScratch::default(),
             scratch8: FastScratch::default(),
             phases: FastTimes::default(),
+            bvh2_scratch: (Vec::new(), Vec::new()),
             refit: None,
         };
         a.build_over(vertices, indices)?;
@@ -284,9 +287,11 @@ impl Accel {
 
     /// Rebuild over new positions of the same mesh: `vertices` replaces the vertices of the
     /// build (same count, same indices; for [`Accel::from_triangles`] the triangles' corners in
-    /// order), with the same options, reusing the previous build's buffers. Fails, leaving the
+    /// order), with the same options, reusing the previous build's buffers (the fast preset
+    /// all of them; the other presets the triangle list, the boxes and the wide tree's nodes
+    /// and packets, while their BVH2 builders still allocate their own). Fails, leaving the
     /// structure as it was, on a vertex count that differs from the build's or on a non-finite
-    /// vertex.
+    /// vertex; a tree too deep to trace is an error that leaves the structure empty.
     pub fn rebuild(&mut self, vertices: &[Vec3]) -> Result<(), TraceError> {
         if vertices.len() != self.vertices.len() {
             return Err(TraceError::VertexCount {
@@ -376,6 +381,7 @@ impl Accel {
         let bvh = &mut self.bvh;
         let (scratch4, scratch8) = (&mut self.scratch4, &mut self.scratch8);
         let phases = &mut self.phases;
+        let (tris, aabbs) = &mut self.bvh2_scratch;
         *phases = FastTimes::default();
         let run = || -> Result<(), TraceError> {
             if fast {
@@ -414,10 +420,9 @@ impl Accel {
                     r.map(|t| bvh.set_fast(indices.len(), t, WIDTH))
                 };
             }
-            let tris = gather_triangles(vertices, indices)?;
-            let bvh2 = build_bvh2(&tris, &opts)?;
-            *bvh = WideBvh::from_own_bvh2(&bvh2, &tris, width)?;
-            Ok(())
+            gather_triangles(vertices, indices, tris)?;
+            let bvh2 = build_bvh2_in(tris, &opts, aabbs)?;
+            bvh.rebuild_from_own_bvh2(&bvh2, tris, width)
         };
         run()
     }
@@ -437,6 +442,7 @@ impl Accel {
             scratch4: FastScratch::default(),
             scratch8: FastScratch::default(),
             phases: FastTimes::default(),
+            bvh2_scratch: (Vec::new(), Vec::new()),
             refit: None,
         })
     }
@@ -522,8 +528,13 @@ impl Accel {
 }
 
 /// The triangles of an indexed mesh (an index naming no vertex is an error).
-fn gather_triangles(vertices: &[Vec3], indices: &[[u32; 3]]) -> Result<Vec<[Vec3; 3]>, TraceError> {
-    let mut tris = Vec::with_capacity(indices.len());
+fn gather_triangles(
+    vertices: &[Vec3],
+    indices: &[[u32; 3]],
+    tris: &mut Vec<[Vec3; 3]>,
+) -> Result<(), TraceError> {
+    tris.clear();
+    tris.reserve(indices.len());
     for (i, t) in indices.iter().enumerate() {
         let mut v = [Vec3::ZERO; 3];
         for (k, &ix) in t.iter().enumerate() {
@@ -535,11 +546,20 @@ fn gather_triangles(vertices: &[Vec3], indices: &[[u32; 3]]) -> Result<Vec<[Vec3
         }
         tris.push(v);
     }
-    Ok(tris)
+    Ok(())
 }
 
 /// The BVH2 a preset and its overrides ask for, built by the LBVH / binned-SAH pipeline.
 pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceError> {
+    build_bvh2_in(tris, opts, &mut Vec::new())
+}
+
+/// [`build_bvh2`] with the triangles' boxes in `aabbs` (reused, left holding them).
+fn build_bvh2_in(
+    tris: &[[Vec3; 3]],
+    opts: &BuildOptions,
+    aabbs: &mut Vec<Aabb>,
+) -> Result<Bvh, TraceError> {
     if tris.is_empty() {
         return Err(TraceError::NoTriangles);
     }
@@ -547,10 +567,11 @@ pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceE
     if let Some(i) = tris.iter().position(|t| !t.iter().all(|v| v.is_finite())) {
         return Err(TraceError::NonFinite(i));
     }
-    let aabbs: Vec<Aabb> = tris
-        .par_iter()
-        .map(|t| Aabb::from_triangle(t[0], t[1], t[2]))
-        .collect();
+    aabbs.clear();
+    aabbs.par_extend(
+        tris.par_iter()
+            .map(|t| Aabb::from_triangle(t[0], t[1], t[2])),
+    );
     let (builder, layout, restructure) = opts.resolve();
     let max_leaf = opts.leaf_size.unwrap_or(DEFAULT_LEAF_SIZE);
     if max_leaf == 0 {
@@ -571,13 +592,13 @@ pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceE
             collapse
         },
     };
-    let out = build_aabbs_inline(aabbs, &bopts).map_err(TraceError::Build)?;
+    let out = build_aabbs_inline(std::mem::take(aabbs), &bopts).map_err(TraceError::Build)?;
+    *aabbs = out.aabbs;
     if !restructure {
         return Ok(out.bvh);
     }
     let mut bvh = out.bvh;
-    restructure_atr(&mut bvh, &out.aabbs, &AtrConfig::default())
-        .map_err(TraceError::Restructure)?;
+    restructure_atr(&mut bvh, aabbs, &AtrConfig::default()).map_err(TraceError::Restructure)?;
     // Without a leaf size of its own, the restructured tree keeps one triangle per leaf: the
     // wide collapse's cover DP chooses the leaves itself (up to eight triangles). An SAH leaf
     // collapse before it was measured to change nothing the DP chooses (same wide SAH and work
