@@ -29,8 +29,10 @@ use crate::trace::TraceError;
 /// Ranges of at most this many primitives are built as one block, in the core's cache.
 pub const BLOCK: u32 = 1024;
 
-/// How far ahead of the block's gather its index and corner loads are prefetched.
-const GATHER_AHEAD: usize = 16;
+/// How far ahead of the block's gather its index loads are prefetched (its corner loads half
+/// as far): a one-thread warm fast build of stanford-dragon gathers in 5.6 ms at 128 against
+/// 8.9 ms at 16 (the loop is short, so the misses need many iterations to overlap).
+const GATHER_AHEAD: usize = 128;
 
 /// Largest leaf: two triangle packets.
 pub const LEAF_MAX: u32 = 2 * WIDTH as u32;
@@ -92,6 +94,8 @@ struct BNode {
     area: f32,
     /// SAH cost of the subtree as the leaf decisions price it.
     cost: f32,
+    /// What opening the subtree saves: its cost less its two children's (0 for a primitive).
+    gain: f32,
     /// The subtree is one leaf.
     leaf: bool,
 }
@@ -105,6 +109,7 @@ const NO_NODE: BNode = BNode {
     count: 0,
     area: 0.0,
     cost: 0.0,
+    gain: 0.0,
     leaf: true,
 };
 
@@ -255,6 +260,7 @@ fn build_block<K: RadixKey, const W: usize>(
             count: 1,
             area,
             cost: COST_PACKET * area,
+            gain: 0.0,
             leaf: true,
         };
         next += 1;
@@ -317,6 +323,7 @@ fn merge(a: &BNode, c: &BNode, l: u32, r: u32) -> BNode {
         count,
         area,
         cost,
+        gain: cost - a.cost - c.cost,
         leaf,
     }
 }
@@ -373,6 +380,20 @@ fn emit_leaf<const W: usize>(
     (code, COST_PACKET * area * k as f32)
 }
 
+/// Which child of a wide node under construction is opened next: every inner child before
+/// any leaf, the largest area first; then a leaf of several primitives whose two halves cost
+/// least against it (positive gain only); never a single primitive. Larger is opened first.
+#[inline(always)]
+fn open_priority(kn: &BNode) -> (u32, f32) {
+    if !kn.leaf {
+        (2, kn.area)
+    } else if kn.count > 1 && kn.gain > 0.0 {
+        (1, kn.gain)
+    } else {
+        (0, 0.0)
+    }
+}
+
 /// Write the wide node made of the block's inner binary node `bn` and its subtree: its
 /// children come from opening the largest inner child until there are `W` (an inner child
 /// left over would cost a wide node of its own), then, with lanes to spare, the leaves whose
@@ -388,36 +409,34 @@ fn emit_wide<K: RadixKey, const W: usize>(
     let nodes = &out.block.nodes;
     let root = &nodes[bn as usize];
     let mut kids = [0u32; W];
+    // Each child's opening priority, kept beside it so the choice reads no node.
+    let mut prio = [(0u32, 0.0f32); W];
     kids[0] = root.left;
     kids[1] = root.right;
+    prio[0] = open_priority(&nodes[root.left as usize]);
+    prio[1] = open_priority(&nodes[root.right as usize]);
     let mut n = 2;
     while n < W {
-        let mut best = usize::MAX;
-        let mut area = -1.0f32;
-        let mut gain = 0.0f32;
-        for (i, &k) in kids[..n].iter().enumerate() {
-            let kn = &nodes[k as usize];
-            if !kn.leaf {
-                if kn.area > area {
-                    area = kn.area;
-                    best = i;
-                }
-            } else if area < 0.0 && kn.count > 1 {
-                let g = kn.cost - nodes[kn.left as usize].cost - nodes[kn.right as usize].cost;
-                if g > gain {
-                    gain = g;
-                    best = i;
-                }
+        // The first of the highest priority.
+        let mut best = 0;
+        for i in 1..n {
+            let (c, v) = prio[i];
+            let (bc, bv) = prio[best];
+            if c > bc || (c == bc && v > bv) {
+                best = i;
             }
         }
-        if best == usize::MAX {
+        if prio[best].0 == 0 {
             break;
         }
         let k = &nodes[kids[best] as usize];
         let (l, r) = (k.left, k.right);
         kids.copy_within(best + 1..n, best + 2);
+        prio.copy_within(best + 1..n, best + 2);
         kids[best] = l;
         kids[best + 1] = r;
+        prio[best] = open_priority(&nodes[l as usize]);
+        prio[best + 1] = open_priority(&nodes[r as usize]);
         n += 1;
     }
     let mut cost = COST_NODE * root.area;
