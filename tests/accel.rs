@@ -1,14 +1,15 @@
 //! Tests of the library face of the tracer, `Accel`, for every preset and both tree widths:
 //! closest and any hit equal brute force on every built-in scene (the hard cases included)
 //! and on the shared scenes of at most a million triangles, every tree passes the wide-tree
-//! validator, `rebuild` after moving the vertices equals a fresh build of the moved mesh, and
-//! bad input is refused with an error.
+//! validator, `rebuild` after moving the vertices equals a fresh build of the moved mesh, a
+//! shared `BuildContext` changes no tree whatever it built before, and bad input is refused
+//! with an error.
 
 use emc_cpu::scene::{self, builtin, Mesh, SceneOptions};
 use emc_cpu::trace::intersect::{brute_force_closest, brute_force_occluded};
 use emc_cpu::trace::traverse::brute_force_packets;
 use emc_cpu::trace::wide::TriPacket;
-use emc_cpu::trace::{Accel, BuildOptions, Hit, Preset, Ray, TraceError};
+use emc_cpu::trace::{Accel, BuildContext, BuildOptions, Hit, Preset, Ray, TraceError};
 use emc_tests::adversarial_rays;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -404,6 +405,81 @@ fn bad_meshes_and_options_are_refused() {
             Accel::build(&v, &[[0, 1, 2]], &l),
             Err(TraceError::ZeroLeafSize)
         ));
+    }
+}
+
+/// The same nodes and packets.
+fn same_tree(x: &Accel, y: &Accel) -> bool {
+    let (x, y) = (x.wide_bvh(), y.wide_bvh());
+    x.nodes == y.nodes && x.nodes8 == y.nodes8 && x.packets == y.packets
+}
+
+#[test]
+fn a_shared_context_changes_no_tree() {
+    // Meshes of different sizes in turn (a smaller after a larger, every preset after every
+    // other), structures dropped and kept, so the context's scratch and the buffers it takes
+    // back from dropped structures hold another build's leftovers each time.
+    let meshes: Vec<Mesh> = [
+        ("mixed", 20_000),
+        ("city", 3000),
+        ("hair", 9000),
+        ("sphere", 500),
+    ]
+    .iter()
+    .map(|&(name, prims)| {
+        scene::load_with(
+            &format!("builtin:{name}"),
+            &SceneOptions::default().with_prims(prims),
+        )
+        .unwrap()
+    })
+    .collect();
+    let mut ctx = BuildContext::new();
+    let mut kept = Vec::new();
+    for round in 0..2 {
+        for (m, s) in meshes.iter().enumerate() {
+            for preset in PRESETS {
+                for width in [8, 4] {
+                    let opts = BuildOptions::preset(preset).with_width(width);
+                    let a = Accel::build_in(&mut ctx, &s.vertices, &s.indices, &opts).unwrap();
+                    let fresh = build(s, preset, width);
+                    assert!(
+                        same_tree(&a, &fresh),
+                        "round {round}, mesh {m}, {preset:?}/{width}: the context changed the tree"
+                    );
+                    assert_eq!(a.triangle(0), fresh.triangle(0));
+                    // Every other structure is kept for a while, the rest dropped at once.
+                    if (m + width) % 3 == 0 {
+                        kept.push(a);
+                    }
+                }
+            }
+            if kept.len() > 4 {
+                kept.drain(..2);
+            }
+        }
+    }
+    // A rebuild in the shared context equals a fresh build of the moved mesh.
+    let s = &meshes[1];
+    for preset in PRESETS {
+        let opts = BuildOptions::preset(preset);
+        let mut a = Accel::build_in(&mut ctx, &s.vertices, &s.indices, &opts).unwrap();
+        let v = moved(&s.vertices, 2.0);
+        a.rebuild_in(&mut ctx, &v).unwrap();
+        let fresh_scene = Mesh {
+            vertices: v,
+            ..s.clone()
+        };
+        assert!(
+            same_tree(&a, &build(&fresh_scene, preset, 8)),
+            "{preset:?}: rebuild_in differs from a fresh build"
+        );
+        // A plain rebuild of a structure built in a context works from its own buffers.
+        a.rebuild(&s.vertices).unwrap();
+        assert!(
+            same_tree(&a, &build(s, preset, 8)),
+            "{preset:?}: plain rebuild"
+        );
     }
 }
 

@@ -47,6 +47,16 @@ fn resize_keeping<T: Copy>(v: &mut Vec<T>, n: usize, x: T, fresh: impl FnOnce(us
     }
 }
 
+/// Empty `v` and make room for `n` elements: its allocation kept when large enough, else a
+/// fresh one asked for huge pages before its first write (an output buffer built by pushes).
+pub fn cleared_with_room<T>(v: &mut Vec<T>, n: usize) {
+    v.clear();
+    if v.capacity() < n {
+        *v = Vec::with_capacity(n);
+        crate::hugepage::advise(v);
+    }
+}
+
 /// A vector of `n` values made by `f`, filled in parallel.
 pub fn from_fn<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
     let mut v: Vec<T> = Vec::with_capacity(n);

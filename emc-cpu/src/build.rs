@@ -538,6 +538,12 @@ impl BuildArena {
         BuildArena::default()
     }
 
+    /// Take back the nodes and primitive order of a finished tree for the next build.
+    pub fn recycle_bvh(&mut self, bvh: crate::bvh::Bvh) {
+        self.nodes = bvh.nodes;
+        self.ids = bvh.prim_indices;
+    }
+
     /// Take back the boxes, nodes and primitive order of a finished build for the next one.
     pub fn recycle(&mut self, out: BuildOutput) {
         self.aabbs = out.aabbs;
@@ -586,6 +592,15 @@ pub fn build_aabbs_inline(
         return Err(BuildError::ZeroThreads);
     }
     build_timed(Timed::inline(), aabbs, opts, &mut BuildArena::new())
+}
+
+/// [`build_aabbs_inline`] in the buffers of `arena` (the caller's pool, no CPU accounting).
+pub fn build_aabbs_inline_in(
+    aabbs: Vec<Aabb>,
+    opts: &PipelineOptions,
+    arena: &mut BuildArena,
+) -> Result<BuildOutput, BuildError> {
+    build_timed(Timed::inline(), aabbs, opts, arena)
 }
 
 /// [`build_aabbs`] in the buffers of `arena`.

@@ -54,4 +54,6 @@ pub use auto::LayoutChoice;
 pub use build::Builder;
 pub use emc_core::LayoutSpec;
 pub use scene::Mesh;
-pub use trace::{Accel, BuildOptions, CustomHit, GeomId, Hit, Preset, Ray, Scene, TraceError};
+pub use trace::{
+    Accel, BuildContext, BuildOptions, CustomHit, GeomId, Hit, Preset, Ray, Scene, TraceError,
+};

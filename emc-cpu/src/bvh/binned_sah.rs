@@ -113,7 +113,7 @@ pub fn build_binned_sah_detailed(
     aabbs: &[Aabb],
     bins: usize,
 ) -> Result<BinnedSahBuild, BinnedSahError> {
-    build_with(aabbs, bins, None)
+    build_with(aabbs, bins, None, &mut BinnedScratch::default())
 }
 
 /// When a node of the top-down build becomes a leaf instead of being split: it holds at most
@@ -154,13 +154,66 @@ pub fn build_binned_sah_leaves(
     if rule.max_leaf == 0 || !(rule.ct.is_finite() && rule.ci.is_finite()) {
         return Err(BinnedSahError::LeafRule);
     }
-    build_with(aabbs, bins, (rule.max_leaf > 1).then_some(rule))
+    build_with(
+        aabbs,
+        bins,
+        (rule.max_leaf > 1).then_some(rule),
+        &mut BinnedScratch::default(),
+    )
+}
+
+/// The buffers of a binned-SAH build, kept for the next one (see
+/// [`build_binned_sah_leaves_in`]): two primitive arrays, the node array, the tags and the
+/// primitive order. A build's result does not depend on what the scratch held before.
+#[derive(Clone, Debug, Default)]
+pub struct BinnedScratch {
+    src: Vec<PrimRef>,
+    dst: Vec<PrimRef>,
+    nodes: Vec<Node>,
+    compact: Vec<Node>,
+    prim_indices: Vec<u32>,
+    tags: Vec<[u8; 4]>,
+}
+
+impl BinnedScratch {
+    /// Take back the node and primitive arrays of a finished build for the next one.
+    pub fn recycle(&mut self, bvh: Bvh) {
+        if bvh.nodes.capacity() > self.nodes.capacity() {
+            self.nodes = bvh.nodes;
+        } else {
+            self.compact = bvh.nodes;
+        }
+        self.prim_indices = bvh.prim_indices;
+    }
+
+    /// Bytes held.
+    pub fn capacity_bytes(&self) -> usize {
+        (self.src.capacity() + self.dst.capacity()) * core::mem::size_of::<PrimRef>()
+            + (self.nodes.capacity() + self.compact.capacity()) * core::mem::size_of::<Node>()
+            + self.prim_indices.capacity() * 4
+            + self.tags.capacity() * 4
+    }
+}
+
+/// [`build_binned_sah_leaves`] in the buffers of `scratch` (a warm build faults no fresh
+/// pages for them). Hand the result's hierarchy back with [`BinnedScratch::recycle`].
+pub fn build_binned_sah_leaves_in(
+    aabbs: &[Aabb],
+    bins: usize,
+    rule: LeafRule,
+    scratch: &mut BinnedScratch,
+) -> Result<BinnedSahBuild, BinnedSahError> {
+    if rule.max_leaf == 0 || !(rule.ct.is_finite() && rule.ci.is_finite()) {
+        return Err(BinnedSahError::LeafRule);
+    }
+    build_with(aabbs, bins, (rule.max_leaf > 1).then_some(rule), scratch)
 }
 
 fn build_with(
     aabbs: &[Aabb],
     bins: usize,
     rule: Option<LeafRule>,
+    scratch: &mut BinnedScratch,
 ) -> Result<BinnedSahBuild, BinnedSahError> {
     if !(2..=MAX_BINS).contains(&bins) {
         return Err(BinnedSahError::BinCount(bins));
@@ -179,23 +232,32 @@ fn build_with(
         return Err(BinnedSahError::InvalidBox { index });
     }
 
-    let mut src: Vec<PrimRef> = aabbs
-        .par_iter()
-        .enumerate()
-        .map(|(i, b)| PrimRef::new(b, i as u32))
-        .collect();
-    let mut dst = crate::buffers::filled(n, PrimRef::default());
-    let mut nodes = crate::buffers::filled(2 * n - 1, Node::default());
-    let mut prim_indices = crate::buffers::filled(n, 0u32);
-    let mut tags = crate::buffers::filled(n, [0u8; 4]);
+    // Every element of these is written before it is read (the nodes a build uses, every
+    // primitive's slot, every tag), so reused buffers keep their old contents.
+    let s = scratch;
+    if s.src.capacity() < n {
+        s.src = Vec::with_capacity(n);
+        crate::hugepage::advise(&s.src);
+    }
+    s.src.clear();
+    s.src.par_extend(
+        aabbs
+            .par_iter()
+            .enumerate()
+            .map(|(i, b)| PrimRef::new(b, i as u32)),
+    );
+    crate::buffers::resized(&mut s.dst, n, PrimRef::default());
+    crate::buffers::resized(&mut s.nodes, 2 * n - 1, Node::default());
+    crate::buffers::resized(&mut s.prim_indices, n, 0u32);
+    crate::buffers::resized(&mut s.tags, n, [0u8; 4]);
 
-    let (bounds, cbounds) = ordered_bounds(&src, true);
+    let (bounds, cbounds) = ordered_bounds(&s.src, true);
     let ctx = Ctx {
-        src: &mut src,
-        dst: &mut dst,
-        nodes: &mut nodes,
-        out: &mut prim_indices,
-        tags: &mut tags,
+        src: &mut s.src,
+        dst: &mut s.dst,
+        nodes: &mut s.nodes,
+        out: &mut s.prim_indices,
+        tags: &mut s.tags,
         prim_base: 0,
         node_base: 0,
     };
@@ -205,13 +267,17 @@ fn build_with(
         depth: 0,
     };
     let (depth, used) = build_parallel(ctx, task, bins, rule, 0);
-    if used < nodes.len() {
-        nodes = compact(&nodes, used);
-    }
+    let nodes = if used < s.nodes.len() {
+        let mut out = std::mem::take(&mut s.compact);
+        compact_into(&s.nodes, used, &mut out);
+        out
+    } else {
+        std::mem::take(&mut s.nodes)
+    };
     Ok(BinnedSahBuild {
         bvh: Bvh {
             nodes,
-            prim_indices,
+            prim_indices: std::mem::take(&mut s.prim_indices),
             root: 0,
         },
         depth,
@@ -219,10 +285,14 @@ fn build_with(
 }
 
 /// The `used` nodes reachable from root 0 of `nodes` (a tree whose subtrees own contiguous
-/// ranges with unused slots at their ends), renumbered in depth-first order.
-fn compact(nodes: &[Node], used: usize) -> Vec<Node> {
-    let mut out: Vec<Node> = Vec::with_capacity(used);
-    crate::hugepage::advise(&out);
+/// ranges with unused slots at their ends), renumbered in depth-first order into `out`
+/// (emptied first; its allocation reused when large enough).
+fn compact_into(nodes: &[Node], used: usize, out: &mut Vec<Node>) {
+    out.clear();
+    if out.capacity() < used {
+        *out = Vec::with_capacity(used);
+        crate::hugepage::advise(out);
+    }
     // (old index, new index of the parent whose right child this is, or u32::MAX)
     let mut stack: Vec<(u32, u32)> = vec![(0, u32::MAX)];
     while let Some((i, parent)) = stack.pop() {
@@ -241,7 +311,6 @@ fn compact(nodes: &[Node], used: usize) -> Vec<Node> {
         }
     }
     debug_assert_eq!(out.len(), used);
-    out
 }
 
 /// A primitive while the tree is built: its box in two 16-byte lanes, the id in the bits of

@@ -5,9 +5,11 @@
 //!
 //! Builds, as the peer harness times Embree: one warm-up build, then **cold** = median of
 //! [`BUILDS`] builds of fresh objects (the previous one dropped first), **warm** = median of
-//! [`BUILDS`] rebuilds of the kept one (`Accel::rebuild`; Embree: `rtcUpdateGeometryBuffer` +
-//! commits on the same scene; obvhs: its PLOC builder and tree reused). Wall time; the thread
-//! pools exist before the clock starts (one rayon pool for emc and obvhs, one Embree device).
+//! [`BUILDS`] rebuilds of the kept one (`Accel::rebuild_in`; Embree: `rtcUpdateGeometryBuffer`
+//! and a commit of the same scene; obvhs: its PLOC builder and tree reused). Wall time; the
+//! thread pools exist before the clock starts (one rayon pool for emc and obvhs, one Embree
+//! device), and emc builds in one [`BuildContext`] per configuration, its device: scratch
+//! memory kept from build to build (the warm-up build fills it), every `Accel` fresh.
 //! Traces: one warm-up pass per configuration (its counts and its own AO rays, made with the
 //! harness's arithmetic: [`crate::peers::harness_ao_rays`], so emc's AO counts here can differ
 //! by a ray from `emc render`'s), then `--runs` passes that alternate the configurations run by
@@ -27,7 +29,7 @@ use crate::peers::{Protocol, Timing, Tracer};
 use crate::scene::{load_with, SceneOptions};
 use crate::trace::wide_lbvh::FastTimes;
 use crate::trace::workload::{AoCounts, CameraMode};
-use crate::trace::{Accel, BuildOptions, Preset};
+use crate::trace::{Accel, BuildContext, BuildOptions, Preset};
 
 /// Builds per cold and per warm median (the harness's `--reps 5`).
 pub const BUILDS: usize = 5;
@@ -414,17 +416,23 @@ fn build<'a>(
         Config::Emc(p) => {
             let opts = BuildOptions::preset(p);
             let (mut pc, mut pw) = (Vec::new(), Vec::new());
+            // The build context is emc's device: scratch memory kept between the builds (the
+            // warm-up build fills it), every structure fresh.
+            let bctx = std::cell::RefCell::new(BuildContext::new());
+            let bctx = &bctx;
             let (a, cold, warm) = time_builds(
                 || {
                     let t0 = Instant::now();
-                    let a = pool.install(|| Accel::build(vertices, indices, &opts))?;
+                    let c: &mut BuildContext = &mut bctx.borrow_mut();
+                    let a = pool.install(|| Accel::build_in(c, vertices, indices, &opts))?;
                     let t = t0.elapsed();
                     pc.push(a.build_phases());
                     Ok((a, t))
                 },
                 |a: &mut Accel| {
                     let t0 = Instant::now();
-                    pool.install(|| a.rebuild(vertices))?;
+                    let c: &mut BuildContext = &mut bctx.borrow_mut();
+                    pool.install(|| a.rebuild_in(c, vertices))?;
                     let t = t0.elapsed();
                     pw.push(a.build_phases());
                     Ok(t)

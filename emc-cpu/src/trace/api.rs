@@ -31,6 +31,8 @@
 //! For a given pool, call them inside `pool.install(|| ...)`.
 #![forbid(unsafe_code)]
 
+use std::sync::{Arc, Mutex};
+
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -38,15 +40,18 @@ use emc_core::{Aabb, LayoutSpec};
 
 use crate::auto::LayoutChoice;
 
-use crate::build::{build_aabbs_inline, Builder};
+use crate::build::{build_aabbs_inline_in, BuildArena, Builder};
 use crate::bvh::atrbvh::{restructure_built as restructure_atr, AtrConfig};
+use crate::bvh::binned_sah::{build_binned_sah_leaves_in, BinnedScratch, LeafRule, DEFAULT_BINS};
 use crate::bvh::collapse::collapse_bvh;
 use crate::bvh::refit::CollapseParams;
 use crate::bvh::Bvh;
 use crate::trace::intersect::{Hit, Ray};
 use crate::trace::refit::RefitPlan;
 use crate::trace::traverse::{closest, occluded, NodeTest, TraceStats};
-use crate::trace::wide::{WideBvh, WideNodeN, WIDTH, WIDTH8};
+use crate::trace::wide::{
+    CollapseScratch, TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, WIDTH, WIDTH8,
+};
 use crate::trace::wide_lbvh::{build_fast, FastScratch, FastTimes};
 use crate::trace::TraceError;
 
@@ -223,6 +228,127 @@ pub fn default_width() -> usize {
     }
 }
 
+/// The memory of builds, kept from one build to the next, as Embree's device keeps its own:
+/// the scratch (boxes, codes and sort buffers of the fast preset; the triangle list, boxes,
+/// primitive arrays, binary nodes and collapse plans of the others), and the buffers of
+/// structures built in it once they are dropped (their nodes, triangle packets and mesh
+/// copies, the largest few of each kind), which the next build takes instead of fresh pages.
+/// Build many meshes in one context ([`Accel::build_in`], [`Accel::rebuild_in`]) and only the
+/// first build faults in fresh memory for what later ones reuse (the structures themselves
+/// hold no scratch); a plain [`Accel::build`] keeps a context of its own inside the structure
+/// for its [`Accel::rebuild`]s. What a build makes never depends on what the context held
+/// before.
+///
+/// ```
+/// use emc_cpu::{Accel, BuildContext, BuildOptions, Preset};
+/// use glam::Vec3;
+///
+/// let mut ctx = BuildContext::new();
+/// let opts = BuildOptions::preset(Preset::Quality);
+/// let square = [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y];
+/// let a = Accel::build_in(&mut ctx, &square, &[[0, 1, 2], [0, 2, 3]], &opts)?;
+/// let b = Accel::build_in(&mut ctx, &square, &[[0, 1, 3]], &opts)?; // the same buffers
+/// assert_eq!((a.triangle_count(), b.triangle_count()), (2, 1));
+/// # Ok::<(), emc_cpu::TraceError>(())
+/// ```
+#[derive(Debug, Default)]
+pub struct BuildContext {
+    fast4: FastScratch<WIDTH>,
+    fast8: FastScratch<WIDTH8>,
+    /// The other builders' triangle list and boxes.
+    tris: Vec<[Vec3; 3]>,
+    aabbs: Vec<Aabb>,
+    /// The binned-SAH builder's buffers (quality preset).
+    binned: BinnedScratch,
+    /// The LBVH pipeline's buffers (balanced preset).
+    arena: BuildArena,
+    /// The wide collapse's plans and work lists.
+    collapse: CollapseScratch,
+    /// The buffers dropped structures built in this context gave back.
+    spare: Arc<Spare>,
+}
+
+impl BuildContext {
+    /// An empty context (its first build allocates).
+    pub fn new() -> BuildContext {
+        BuildContext::default()
+    }
+}
+
+/// Buffers of dropped structures, waiting for the next build of their context: at most
+/// [`SPARE_PER_KIND`] of each kind, the largest kept.
+#[derive(Debug, Default)]
+struct Spare(Mutex<SpareLists>);
+
+/// How many buffers of each kind a context keeps from dropped structures (one structure
+/// rebuilt in turn needs one; more would hold memory nobody asked for).
+const SPARE_PER_KIND: usize = 2;
+
+#[derive(Debug, Default)]
+struct SpareLists {
+    nodes4: Vec<Vec<WideNode>>,
+    nodes8: Vec<Vec<WideNode8>>,
+    packets: Vec<Vec<TriPacket>>,
+    vertices: Vec<Vec<Vec3>>,
+    indices: Vec<Vec<[u32; 3]>>,
+}
+
+/// Keep `v` (emptied) in `list` if it is among the largest [`SPARE_PER_KIND`].
+fn keep_spare<T>(list: &mut Vec<Vec<T>>, mut v: Vec<T>) {
+    if v.capacity() == 0 {
+        return;
+    }
+    v.clear();
+    if list.len() < SPARE_PER_KIND {
+        list.push(v);
+    } else if let Some(small) = list.iter_mut().min_by_key(|x| x.capacity()) {
+        if small.capacity() < v.capacity() {
+            *small = v;
+        }
+    }
+}
+
+/// The largest buffer of `list` (empty), or a new empty one.
+fn take_spare<T>(list: &mut Vec<Vec<T>>) -> Vec<T> {
+    let best = (0..list.len()).max_by_key(|&i| list[i].capacity());
+    best.map(|i| list.swap_remove(i)).unwrap_or_default()
+}
+
+impl Spare {
+    fn lists(&self) -> std::sync::MutexGuard<'_, SpareLists> {
+        // A panic while the lock was held leaves only buffers behind: still usable.
+        self.0.lock().unwrap_or_else(|e| e.into_inner())
+    }
+
+    /// The buffers of a new structure: the largest of each kind kept.
+    fn take(&self) -> (WideBvh, Vec<Vec3>, Vec<[u32; 3]>) {
+        let mut l = self.lists();
+        let mut bvh = WideBvh::empty();
+        bvh.nodes = take_spare(&mut l.nodes4);
+        bvh.nodes8 = take_spare(&mut l.nodes8);
+        bvh.packets = take_spare(&mut l.packets);
+        (bvh, take_spare(&mut l.vertices), take_spare(&mut l.indices))
+    }
+
+    /// Keep a dropped structure's buffers.
+    fn give(&self, a: &mut Accel) {
+        let mut l = self.lists();
+        keep_spare(&mut l.nodes4, std::mem::take(&mut a.bvh.nodes));
+        keep_spare(&mut l.nodes8, std::mem::take(&mut a.bvh.nodes8));
+        keep_spare(&mut l.packets, std::mem::take(&mut a.bvh.packets));
+        keep_spare(&mut l.vertices, std::mem::take(&mut a.vertices));
+        keep_spare(&mut l.indices, std::mem::take(&mut a.indices));
+    }
+}
+
+impl Clone for BuildContext {
+    /// An empty context: scratch holds nothing a build reads, so a copy of an
+    /// [`Accel`] does not copy its build buffers.
+    fn clone(&self) -> BuildContext {
+        BuildContext::default()
+    }
+}
+
 /// A triangle mesh ready for ray queries: a copy of the mesh and its wide BVH.
 #[derive(Debug, Clone)]
 pub struct Accel {
@@ -231,21 +357,47 @@ pub struct Accel {
     indices: Vec<[u32; 3]>,
     opts: BuildOptions,
     test: NodeTest,
-    scratch4: FastScratch<WIDTH>,
-    scratch8: FastScratch<WIDTH8>,
+    /// The context of [`Accel::build`] and [`Accel::rebuild`] (empty after
+    /// [`Accel::build_in`] until a plain rebuild).
+    ctx: BuildContext,
     phases: FastTimes,
-    /// The other builders' triangle list and boxes, kept for the next rebuild.
-    bvh2_scratch: (Vec<[Vec3; 3]>, Vec<Aabb>),
     /// The level order of [`Accel::refit`] and whether every vertex is referenced, made at
     /// the first refit after a build.
     refit: Option<(RefitPlan, bool)>,
+    /// Where the buffers go when the structure is dropped (built with [`Accel::build_in`]).
+    spare: Option<Arc<Spare>>,
+}
+
+impl Drop for Accel {
+    fn drop(&mut self) {
+        if let Some(spare) = self.spare.take() {
+            spare.give(self);
+        }
+    }
 }
 
 impl Accel {
     /// Build over an indexed mesh. Fails on an out-of-range index, a non-finite vertex, an
     /// empty mesh, an unknown builder or layout, a width other than 4 or 8, or a tree too deep
-    /// to trace.
+    /// to trace. The structure keeps its build buffers for [`Accel::rebuild`]; to share them
+    /// between structures, build with [`Accel::build_in`].
     pub fn build(
+        vertices: &[Vec3],
+        indices: &[[u32; 3]],
+        opts: &BuildOptions,
+    ) -> Result<Accel, TraceError> {
+        let mut ctx = BuildContext::new();
+        let mut a = Accel::build_in(&mut ctx, vertices, indices, opts)?;
+        // The structure's own context: nothing to give back to on drop.
+        a.spare = None;
+        a.ctx = ctx;
+        Ok(a)
+    }
+
+    /// [`Accel::build`] in the buffers of `ctx` (kept there for the next build; the structure
+    /// holds none).
+    pub fn build_in(
+        ctx: &mut BuildContext,
         vertices: &[Vec3],
         indices: &[[u32; 3]],
         opts: &BuildOptions,
@@ -254,21 +406,31 @@ impl Accel {
         if width != WIDTH && width != WIDTH8 {
             return Err(TraceError::Width(width));
         }
+        let (bvh, mut vert_copy, mut index_copy) = ctx.spare.take();
         let mut a = Accel {
-            bvh: WideBvh::empty(),
+            bvh,
             vertices: Vec::new(),
             indices: Vec::new(),
             opts: *opts,
             test: NodeTest::for_width(width),
-            scratch4: FastScratch::default(),
-            scratch8: FastScratch::default(),
+            ctx: BuildContext::new(),
             phases: FastTimes::default(),
-            bvh2_scratch: (Vec::new(), Vec::new()),
             refit: None,
+            spare: Some(Arc::clone(&ctx.spare)),
         };
-        a.build_over(vertices, indices)?;
-        a.vertices = vertices.to_vec();
-        a.indices = indices.to_vec();
+        build_over(
+            &mut a.bvh,
+            &mut a.phases,
+            &a.opts,
+            width,
+            ctx,
+            vertices,
+            indices,
+        )?;
+        vert_copy.extend_from_slice(vertices);
+        index_copy.extend_from_slice(indices);
+        a.vertices = vert_copy;
+        a.indices = index_copy;
         a.debug_validate();
         Ok(a)
     }
@@ -287,21 +449,41 @@ impl Accel {
 
     /// Rebuild over new positions of the same mesh: `vertices` replaces the vertices of the
     /// build (same count, same indices; for [`Accel::from_triangles`] the triangles' corners in
-    /// order), with the same options, reusing the previous build's buffers (the fast preset
-    /// all of them; the other presets the triangle list, the boxes and the wide tree's nodes
-    /// and packets, while their BVH2 builders still allocate their own). Fails, leaving the
-    /// structure as it was, on a vertex count that differs from the build's or on a non-finite
-    /// vertex; a tree too deep to trace is an error that leaves the structure empty.
+    /// order), with the same options, in the structure's own buffers (those of its last
+    /// plain build or rebuild: every scratch buffer and the wide tree's nodes and packets).
+    /// Fails, leaving the structure as it was, on a vertex count that differs from the build's
+    /// or on a non-finite vertex; a tree too deep to trace is an error that leaves the
+    /// structure empty.
     pub fn rebuild(&mut self, vertices: &[Vec3]) -> Result<(), TraceError> {
+        let mut ctx = std::mem::take(&mut self.ctx);
+        let r = self.rebuild_in(&mut ctx, vertices);
+        self.ctx = ctx;
+        r
+    }
+
+    /// [`Accel::rebuild`] with the scratch buffers of `ctx` (the wide tree's nodes and packets
+    /// are still the structure's own).
+    pub fn rebuild_in(
+        &mut self,
+        ctx: &mut BuildContext,
+        vertices: &[Vec3],
+    ) -> Result<(), TraceError> {
         if vertices.len() != self.vertices.len() {
             return Err(TraceError::VertexCount {
                 given: vertices.len(),
                 expected: self.vertices.len(),
             });
         }
-        let indices = std::mem::take(&mut self.indices);
-        let r = self.build_over(vertices, &indices);
-        self.indices = indices;
+        let width = self.test.width();
+        let r = build_over(
+            &mut self.bvh,
+            &mut self.phases,
+            &self.opts,
+            width,
+            ctx,
+            vertices,
+            &self.indices,
+        );
         self.refit = None;
         r?;
         self.vertices.copy_from_slice(vertices);
@@ -368,65 +550,6 @@ impl Accel {
         }
     }
 
-    /// Build `self.bvh` over the mesh with `self.opts`, reusing the buffers held.
-    fn build_over(&mut self, vertices: &[Vec3], indices: &[[u32; 3]]) -> Result<(), TraceError> {
-        let width = self.test.width();
-        let (builder, layout, restructure) = self.opts.resolve();
-        // The radix tree (Karras = Apetrei) without restructuring goes straight to the wide
-        // tree; the other builders make a BVH2 that is then collapsed.
-        let fast = matches!(builder, Builder::Lbvh | Builder::LbvhApetrei)
-            && !restructure
-            && self.opts.leaf_size.is_none_or(|l| l == DEFAULT_LEAF_SIZE);
-        let opts = self.opts;
-        let bvh = &mut self.bvh;
-        let (scratch4, scratch8) = (&mut self.scratch4, &mut self.scratch8);
-        let phases = &mut self.phases;
-        let (tris, aabbs) = &mut self.bvh2_scratch;
-        *phases = FastTimes::default();
-        let run = || -> Result<(), TraceError> {
-            if fast {
-                let times = phases;
-                return if width == WIDTH8 {
-                    let mut nodes = std::mem::take(&mut bvh.nodes8);
-                    let mut packets = std::mem::take(&mut bvh.packets);
-                    let r = build_fast::<WIDTH8>(
-                        vertices,
-                        indices,
-                        &layout,
-                        scratch8,
-                        &mut nodes,
-                        &mut packets,
-                        times,
-                    );
-                    bvh.nodes.clear();
-                    bvh.nodes8 = nodes;
-                    bvh.packets = packets;
-                    r.map(|t| bvh.set_fast(indices.len(), t, WIDTH8))
-                } else {
-                    let mut nodes = std::mem::take(&mut bvh.nodes);
-                    let mut packets = std::mem::take(&mut bvh.packets);
-                    let r = build_fast::<WIDTH>(
-                        vertices,
-                        indices,
-                        &layout,
-                        scratch4,
-                        &mut nodes,
-                        &mut packets,
-                        times,
-                    );
-                    bvh.nodes8.clear();
-                    bvh.nodes = nodes;
-                    bvh.packets = packets;
-                    r.map(|t| bvh.set_fast(indices.len(), t, WIDTH))
-                };
-            }
-            gather_triangles(vertices, indices, tris)?;
-            let bvh2 = build_bvh2_in(tris, &opts, aabbs)?;
-            bvh.rebuild_from_own_bvh2(&bvh2, tris, width)
-        };
-        run()
-    }
-
     /// Wrap a BVH2 from any builder (validated against `tris`, then collapsed to the default
     /// width). A later [`Accel::rebuild`] builds with the default options.
     pub fn from_bvh2(bvh2: &Bvh, tris: Vec<[Vec3; 3]>) -> Result<Accel, TraceError> {
@@ -439,11 +562,10 @@ impl Accel {
             indices: (0..n).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect(),
             opts: BuildOptions::default(),
             test: NodeTest::for_width(width),
-            scratch4: FastScratch::default(),
-            scratch8: FastScratch::default(),
+            ctx: BuildContext::new(),
             phases: FastTimes::default(),
-            bvh2_scratch: (Vec::new(), Vec::new()),
             refit: None,
+            spare: None,
         })
     }
 
@@ -527,6 +649,82 @@ impl Accel {
     }
 }
 
+/// Build `bvh` (its buffers reused) over the mesh with `opts` at `width`, in the scratch of
+/// `ctx`, recording the fast path's phases in `phases`.
+fn build_over(
+    bvh: &mut WideBvh,
+    phases: &mut FastTimes,
+    opts: &BuildOptions,
+    width: usize,
+    ctx: &mut BuildContext,
+    vertices: &[Vec3],
+    indices: &[[u32; 3]],
+) -> Result<(), TraceError> {
+    let (builder, layout, restructure) = opts.resolve();
+    // The radix tree (Karras = Apetrei) without restructuring goes straight to the wide
+    // tree; the other builders make a BVH2 that is then collapsed.
+    let fast = matches!(builder, Builder::Lbvh | Builder::LbvhApetrei)
+        && !restructure
+        && opts.leaf_size.is_none_or(|l| l == DEFAULT_LEAF_SIZE);
+    *phases = FastTimes::default();
+    if fast {
+        return if width == WIDTH8 {
+            let mut nodes = std::mem::take(&mut bvh.nodes8);
+            let mut packets = std::mem::take(&mut bvh.packets);
+            let r = build_fast::<WIDTH8>(
+                vertices,
+                indices,
+                &layout,
+                &mut ctx.fast8,
+                &mut nodes,
+                &mut packets,
+                phases,
+            );
+            bvh.nodes.clear();
+            bvh.nodes8 = nodes;
+            bvh.packets = packets;
+            r.map(|t| bvh.set_fast(indices.len(), t, WIDTH8))
+        } else {
+            let mut nodes = std::mem::take(&mut bvh.nodes);
+            let mut packets = std::mem::take(&mut bvh.packets);
+            let r = build_fast::<WIDTH>(
+                vertices,
+                indices,
+                &layout,
+                &mut ctx.fast4,
+                &mut nodes,
+                &mut packets,
+                phases,
+            );
+            bvh.nodes8.clear();
+            bvh.nodes = nodes;
+            bvh.packets = packets;
+            r.map(|t| bvh.set_fast(indices.len(), t, WIDTH))
+        };
+    }
+    let mut tris = std::mem::take(&mut ctx.tris);
+    let r = gather_triangles(vertices, indices, &mut tris).and_then(|()| {
+        let bvh2 = build_bvh2_in(&tris, opts, ctx)?;
+        let r = bvh.rebuild_from_own_bvh2(&bvh2.0, &tris, width, &mut ctx.collapse);
+        ctx.recycle(bvh2);
+        r
+    });
+    ctx.tris = tris;
+    r
+}
+
+impl BuildContext {
+    /// Take back a finished BVH2's arrays: to the binned builder's buffers when it made them,
+    /// else to the pipeline's.
+    fn recycle(&mut self, (bvh, binned): (Bvh, bool)) {
+        if binned {
+            self.binned.recycle(bvh);
+        } else {
+            self.arena.recycle_bvh(bvh);
+        }
+    }
+}
+
 /// The triangles of an indexed mesh (an index naming no vertex is an error).
 fn gather_triangles(
     vertices: &[Vec3],
@@ -551,15 +749,16 @@ fn gather_triangles(
 
 /// The BVH2 a preset and its overrides ask for, built by the LBVH / binned-SAH pipeline.
 pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceError> {
-    build_bvh2_in(tris, opts, &mut Vec::new())
+    build_bvh2_in(tris, opts, &mut BuildContext::new()).map(|b| b.0)
 }
 
-/// [`build_bvh2`] with the triangles' boxes in `aabbs` (reused, left holding them).
+/// [`build_bvh2`] in the buffers of `ctx` (its boxes left holding the triangles' boxes); true
+/// when the binned builder made the tree (in the binned buffers).
 fn build_bvh2_in(
     tris: &[[Vec3; 3]],
     opts: &BuildOptions,
-    aabbs: &mut Vec<Aabb>,
-) -> Result<Bvh, TraceError> {
+    ctx: &mut BuildContext,
+) -> Result<(Bvh, bool), TraceError> {
     if tris.is_empty() {
         return Err(TraceError::NoTriangles);
     }
@@ -567,6 +766,7 @@ fn build_bvh2_in(
     if let Some(i) = tris.iter().position(|t| !t.iter().all(|v| v.is_finite())) {
         return Err(TraceError::NonFinite(i));
     }
+    let aabbs = &mut ctx.aabbs;
     aabbs.clear();
     aabbs.par_extend(
         tris.par_iter()
@@ -581,6 +781,18 @@ fn build_bvh2_in(
         max_leaf,
         ..CollapseParams::default()
     };
+    if builder == Builder::BinnedSah && !restructure && max_leaf > 1 {
+        // The pipeline's library path, in the context's buffers: the top-down build cut at
+        // its SAH leaves.
+        let rule = LeafRule {
+            max_leaf,
+            ct: collapse.ct,
+            ci: collapse.ci,
+        };
+        return build_binned_sah_leaves_in(aabbs, DEFAULT_BINS, rule, &mut ctx.binned)
+            .map(|b| (b.bvh, true))
+            .map_err(|e| TraceError::Build(crate::build::BuildError::Binned(e)));
+    }
     let threads = rayon::current_num_threads();
     let bopts = crate::build::PipelineOptions {
         layout,
@@ -592,10 +804,11 @@ fn build_bvh2_in(
             collapse
         },
     };
-    let out = build_aabbs_inline(std::mem::take(aabbs), &bopts).map_err(TraceError::Build)?;
+    let out = build_aabbs_inline_in(std::mem::take(aabbs), &bopts, &mut ctx.arena)
+        .map_err(TraceError::Build)?;
     *aabbs = out.aabbs;
     if !restructure {
-        return Ok(out.bvh);
+        return Ok((out.bvh, false));
     }
     let mut bvh = out.bvh;
     restructure_atr(&mut bvh, aabbs, &AtrConfig::default()).map_err(TraceError::Restructure)?;
@@ -606,7 +819,7 @@ fn build_bvh2_in(
     // 1.24 G instructions for a san-francisco build); after binned SAH it saves more than it
     // costs, so that path keeps it.
     if opts.leaf_size.is_none() {
-        return Ok(bvh);
+        return Ok((bvh, false));
     }
-    Ok(collapse_bvh(&bvh, &collapse))
+    Ok((collapse_bvh(&bvh, &collapse), false))
 }

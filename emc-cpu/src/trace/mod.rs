@@ -14,7 +14,7 @@ pub mod wide;
 pub mod wide_lbvh;
 pub mod workload;
 
-pub use api::{Accel, BuildOptions, Preset};
+pub use api::{Accel, BuildContext, BuildOptions, Preset};
 pub use intersect::{Hit, Ray};
 pub use scene::{CustomHit, GeomId, Intersector, Scene};
 pub use traverse::{NodeTest, TraceStats};

@@ -251,7 +251,8 @@ impl WideBvh {
     /// and leaves of whole subtrees (see `Plan`); the 4-wide tree is the optimal cover with
     /// up to four children over the same leaves.
     pub fn from_bvh2(bvh: &Bvh, tris: &[[Vec3; 3]]) -> Result<WideBvh, TraceError> {
-        WideBvh::collapse_bvh2(bvh, tris, true, true, false, WideBvh::empty())
+        let scratch = &mut CollapseScratch::default();
+        WideBvh::collapse_bvh2(bvh, tris, true, true, false, WideBvh::empty(), scratch)
     }
 
     /// [`WideBvh::from_bvh2`] building only the tree of `width` (4 or 8; any other value
@@ -261,7 +262,8 @@ impl WideBvh {
         tris: &[[Vec3; 3]],
         width: usize,
     ) -> Result<WideBvh, TraceError> {
-        WideBvh::collapse_width(bvh, tris, width, false, WideBvh::empty())
+        let scratch = &mut CollapseScratch::default();
+        WideBvh::collapse_width(bvh, tris, width, false, WideBvh::empty(), scratch)
     }
 
     /// [`WideBvh::from_bvh2_width`] into this structure, for a BVH2 from this crate's own
@@ -274,9 +276,11 @@ impl WideBvh {
         bvh: &Bvh,
         tris: &[[Vec3; 3]],
         width: usize,
+        scratch: &mut CollapseScratch,
     ) -> Result<(), TraceError> {
         let old = std::mem::replace(self, WideBvh::empty());
-        *self = WideBvh::collapse_width(bvh, tris, width, !cfg!(debug_assertions), old)?;
+        let trusted = !cfg!(debug_assertions);
+        *self = WideBvh::collapse_width(bvh, tris, width, trusted, old, scratch)?;
         Ok(())
     }
 
@@ -286,11 +290,12 @@ impl WideBvh {
         width: usize,
         trusted: bool,
         old: WideBvh,
+        scratch: &mut CollapseScratch,
     ) -> Result<WideBvh, TraceError> {
         match width {
-            WIDTH => WideBvh::collapse_bvh2(bvh, tris, true, false, trusted, old),
-            WIDTH8 => WideBvh::collapse_bvh2(bvh, tris, false, true, trusted, old),
-            _ => WideBvh::collapse_bvh2(bvh, tris, true, true, trusted, old),
+            WIDTH => WideBvh::collapse_bvh2(bvh, tris, true, false, trusted, old, scratch),
+            WIDTH8 => WideBvh::collapse_bvh2(bvh, tris, false, true, trusted, old, scratch),
+            _ => WideBvh::collapse_bvh2(bvh, tris, true, true, trusted, old, scratch),
         }
     }
 
@@ -341,6 +346,7 @@ impl WideBvh {
         eight: bool,
         trusted: bool,
         old: WideBvh,
+        scratch: &mut CollapseScratch,
     ) -> Result<WideBvh, TraceError> {
         if tris.is_empty() {
             return Err(TraceError::NoTriangles);
@@ -369,22 +375,28 @@ impl WideBvh {
         let pad = max_abs * (1.0 / 65536.0);
         // The buffers of `old` (empty for a first build), cleared.
         let (old4, old8, mut packets) = (old.nodes, old.nodes8, old.packets);
-        packets.clear();
-        packets.reserve(tris.len() / 2);
+        crate::buffers::cleared_with_room(&mut packets, tris.len() / 2);
         let mut leaves = 0;
-        let mut prims = (Vec::new(), Vec::new());
+        let CollapseScratch {
+            plan4,
+            plan8,
+            walk,
+            emit: prims,
+            leaf_codes,
+        } = scratch;
         if !eight {
             // The 4-wide tree alone chooses its leaves.
-            let plan4 = Plan::<WIDTH>::new(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false);
+            plan4.fill(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false, walk);
             let (nodes, depth) = collapse::<WIDTH>(
                 bvh,
-                &plan4,
+                plan4,
                 pad,
                 |n| {
                     leaves += 1;
-                    emit_leaf(&mut packets, &mut prims, bvh, n, tris)
+                    emit_leaf(&mut packets, prims, bvh, n, tris)
                 },
                 old4,
+                walk,
             )?;
             return Ok(WideBvh {
                 nodes,
@@ -399,18 +411,17 @@ impl WideBvh {
         }
         // The 8-wide tree chooses the leaves (and emits their packets in its depth-first
         // order); the 4-wide tree is planned over exactly those leaves and shares them.
-        let plan8 = Plan::<WIDTH8>::new(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false);
-        let mut leaf_codes = if four {
-            vec![EMPTY; bvh.nodes.len()]
-        } else {
-            Vec::new()
-        };
+        plan8.fill(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false, walk);
+        if four {
+            leaf_codes.clear();
+            leaf_codes.resize(bvh.nodes.len(), EMPTY);
+        }
         let (nodes8, depth8) = collapse::<WIDTH8>(
             bvh,
-            &plan8,
+            plan8,
             pad,
             |n| {
-                let code = emit_leaf(&mut packets, &mut prims, bvh, n, tris);
+                let code = emit_leaf(&mut packets, prims, bvh, n, tris);
                 if four {
                     leaf_codes[n as usize] = code;
                 }
@@ -418,11 +429,11 @@ impl WideBvh {
                 code
             },
             old8,
+            walk,
         )?;
-        drop(plan8);
         let (nodes, depth) = if four {
-            let plan4 = Plan::<WIDTH>::new(bvh, |_, _| false, |n| leaf_codes[n as usize] != EMPTY);
-            collapse::<WIDTH>(bvh, &plan4, pad, |n| leaf_codes[n as usize], old4)?
+            plan4.fill(bvh, |_, _| false, |n| leaf_codes[n as usize] != EMPTY, walk);
+            collapse::<WIDTH>(bvh, plan4, pad, |n| leaf_codes[n as usize], old4, walk)?
         } else {
             (Vec::new(), 0)
         };
@@ -671,6 +682,7 @@ const MAX_LEAF_TRIANGLES: u32 = 8;
 ///   leaf(n)    = Cp·A(n)·⌈P(n)/4⌉   when n may be a leaf, else +inf
 /// ```
 /// A BVH2 leaf is always one leaf (`cost(n, i) = leaf(n)`). `A` is the half surface area.
+#[derive(Clone, Debug, Default)]
 struct Plan<const W: usize> {
     /// `cost[n][i − 1]` = `cost(n, i)`.
     cost: Vec<[f32; W]>,
@@ -680,21 +692,58 @@ struct Plan<const W: usize> {
     leaf: Vec<bool>,
 }
 
+/// The work lists of the collapse (kept between builds).
+#[derive(Clone, Debug, Default)]
+struct Walk {
+    /// Triangles under each BVH2 node.
+    prims: Vec<u32>,
+    /// The nodes in pre-order.
+    pre: Vec<u32>,
+    stack: Vec<u32>,
+    /// `Plan::children`'s work list and result.
+    todo: Vec<(u32, usize)>,
+    kids: Vec<u32>,
+    inner: Vec<(u32, usize)>,
+    /// The emission's work list (BVH2 node, wide parent, lane, depth).
+    work: Vec<(u32, usize, usize, usize)>,
+}
+
+/// The buffers of the wide collapse, kept for the next one: both plans, the work lists, the
+/// leaf emission's lists and the 8-wide leaves' codes (for a 4-wide tree over them).
+#[derive(Clone, Debug, Default)]
+pub struct CollapseScratch {
+    plan4: Plan<WIDTH>,
+    plan8: Plan<WIDTH8>,
+    walk: Walk,
+    emit: (Vec<u32>, Vec<u32>),
+    leaf_codes: Vec<u32>,
+}
+
 impl<const W: usize> Plan<W> {
-    /// Plan the collapse of the validated `bvh`. `may_leaf(n, triangles)` says whether inner
-    /// BVH2 node `n`, whose subtree holds `triangles`, may become one leaf; `forced(n)` makes
-    /// node `n` a leaf whatever it costs (its subtree is then never opened).
-    fn new(bvh: &Bvh, may_leaf: impl Fn(u32, u32) -> bool, forced: impl Fn(u32) -> bool) -> Self {
+    /// Plan the collapse of the validated `bvh` (every entry of the plan rewritten for the
+    /// nodes the collapse can reach). `may_leaf(n, triangles)` says whether inner BVH2 node
+    /// `n`, whose subtree holds `triangles`, may become one leaf; `forced(n)` makes node `n` a
+    /// leaf whatever it costs (its subtree is then never opened).
+    fn fill(
+        &mut self,
+        bvh: &Bvh,
+        may_leaf: impl Fn(u32, u32) -> bool,
+        forced: impl Fn(u32) -> bool,
+        walk: &mut Walk,
+    ) {
         let n = bvh.nodes.len();
-        let mut plan = Plan {
-            cost: vec![[0.0; W]; n],
-            split: vec![[0; W]; n],
-            leaf: vec![false; n],
-        };
-        let mut prims = vec![0u32; n];
+        let plan = self;
+        crate::buffers::resized(&mut plan.cost, n, [0.0; W]);
+        crate::buffers::resized(&mut plan.split, n, [0; W]);
+        crate::buffers::resized(&mut plan.leaf, n, false);
+        let prims = &mut walk.prims;
+        crate::buffers::resized(prims, n, 0u32);
         // Pre-order; its reverse visits children before parents.
-        let mut pre = Vec::with_capacity(n);
-        let mut stack = vec![bvh.root];
+        let pre = &mut walk.pre;
+        pre.clear();
+        let stack = &mut walk.stack;
+        stack.clear();
+        stack.push(bvh.root);
         while let Some(i) = stack.pop() {
             pre.push(i);
             let node = &bvh.nodes[i as usize];
@@ -729,29 +778,26 @@ impl<const W: usize> Plan<W> {
                 f32::INFINITY
             };
             let mut cost = [0.0f32; W];
-            if as_leaf <= inner {
-                cost[0] = as_leaf;
-                plan.leaf[at] = true;
-            } else {
-                cost[0] = inner;
-            }
+            let leaf = as_leaf <= inner;
+            cost[0] = if leaf { as_leaf } else { inner };
+            plan.leaf[at] = leaf;
             for j in 2..=W {
                 cost[j - 1] = cost[j - 2].min(dist[j - 1]);
             }
             plan.cost[at] = cost;
             plan.split[at] = split;
         }
-        plan
     }
 
     /// The BVH2 nodes that become the children of the wide node made of inner node `n`, in
-    /// depth-first order.
-    fn children(&self, bvh: &Bvh, n: u32, out: &mut Vec<u32>) {
+    /// depth-first order (`todo`: a work list).
+    fn children(&self, bvh: &Bvh, n: u32, out: &mut Vec<u32>, todo: &mut Vec<(u32, usize)>) {
         out.clear();
         let node = &bvh.nodes[n as usize];
         let k = self.split[n as usize][W - 1] as usize;
         // (BVH2 node, slots it may use), right part pushed first so the left comes out first.
-        let mut todo: Vec<(u32, usize)> = vec![(node.right(), W - k), (node.left(), k)];
+        todo.clear();
+        todo.extend([(node.right(), W - k), (node.left(), k)]);
         while let Some((m, mut i)) = todo.pop() {
             let c = &self.cost[m as usize];
             // Fewer slots give the same cost: use fewer (ties go to the smaller cover).
@@ -806,9 +852,9 @@ fn collapse<const W: usize>(
     pad: f32,
     mut leaf: impl FnMut(u32) -> u32,
     mut nodes: Vec<WideNodeN<W>>,
+    walk: &mut Walk,
 ) -> Result<(Vec<WideNodeN<W>>, usize), TraceError> {
-    nodes.clear();
-    nodes.reserve(bvh.nodes.len() / W + 1);
+    crate::buffers::cleared_with_room(&mut nodes, bvh.nodes.len() / W + 1);
     let mut max_depth = 0;
     let root = &bvh.nodes[bvh.root as usize];
     nodes.push(WideNodeN::empty());
@@ -817,10 +863,16 @@ fn collapse<const W: usize>(
         nodes[0].set(0, &root.bounds, code, pad);
         return Ok((nodes, 0));
     }
-    let mut kids = Vec::with_capacity(W);
-    let mut inner = Vec::with_capacity(W);
+    let Walk {
+        todo,
+        kids,
+        inner,
+        work,
+        ..
+    } = walk;
     // Work items: (BVH2 node, wide parent index, lane, depth of the new wide node).
-    let mut work: Vec<(u32, usize, usize, usize)> = vec![(bvh.root, usize::MAX, 0, 0)];
+    work.clear();
+    work.push((bvh.root, usize::MAX, 0, 0));
     while let Some((n2, parent, lane, depth)) = work.pop() {
         if depth > MAX_DEPTH {
             return Err(TraceError::TooDeep {
@@ -837,7 +889,7 @@ fn collapse<const W: usize>(
             nodes[parent].child[lane] = i as u32;
             i
         };
-        plan.children(bvh, n2, &mut kids);
+        plan.children(bvh, n2, kids, todo);
         // Leaves first (their triangles follow the parent), then inner children in order.
         inner.clear();
         for (lane, &k) in kids.iter().enumerate() {
