@@ -50,9 +50,9 @@ use crate::trace::intersect::{Hit, Ray};
 use crate::trace::refit::RefitPlan;
 use crate::trace::traverse::{closest, occluded, NodeTest, TraceStats};
 use crate::trace::wide::{
-    CollapseScratch, TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, WIDTH, WIDTH8,
+    CollapseScratch, Indexed, TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, WIDTH, WIDTH8,
 };
-use crate::trace::wide_lbvh::{build_fast, FastScratch, FastTimes};
+use crate::trace::wide_lbvh::{build_fast, mesh_boxes, FastScratch, FastTimes};
 use crate::trace::TraceError;
 
 /// Speed / quality trade-off of [`Accel::build`].
@@ -229,8 +229,8 @@ pub fn default_width() -> usize {
 }
 
 /// The memory of builds, kept from one build to the next, as Embree's device keeps its own:
-/// the scratch (boxes, codes and sort buffers of the fast preset; the triangle list, boxes,
-/// primitive arrays, binary nodes and collapse plans of the others), and the buffers of
+/// the scratch (boxes, codes and sort buffers of the fast preset; the boxes, primitive arrays,
+/// binary nodes and collapse plans of the others), and the buffers of
 /// structures built in it once they are dropped (their nodes, triangle packets and mesh
 /// copies, the largest few of each kind), which the next build takes instead of fresh pages.
 /// Build many meshes in one context ([`Accel::build_in`], [`Accel::rebuild_in`]) and only the
@@ -255,8 +255,7 @@ pub fn default_width() -> usize {
 pub struct BuildContext {
     fast4: FastScratch<WIDTH>,
     fast8: FastScratch<WIDTH8>,
-    /// The other builders' triangle list and boxes.
-    tris: Vec<[Vec3; 3]>,
+    /// The other builders' triangle boxes.
     aabbs: Vec<Aabb>,
     /// The binned-SAH builder's buffers (quality preset).
     binned: BinnedScratch,
@@ -702,14 +701,18 @@ fn build_over(
             r.map(|t| bvh.set_fast(indices.len(), t, WIDTH))
         };
     }
-    let mut tris = std::mem::take(&mut ctx.tris);
-    let r = gather_triangles(vertices, indices, &mut tris).and_then(|()| {
-        let bvh2 = build_bvh2_in(&tris, opts, ctx)?;
-        let r = bvh.rebuild_from_own_bvh2(&bvh2.0, &tris, width, &mut ctx.collapse);
-        ctx.recycle(bvh2);
-        r
-    });
-    ctx.tris = tris;
+    // The mesh is checked and boxed in one pass; the collapse reads the corners through the
+    // indices (no triangle list is made).
+    if indices.is_empty() {
+        return Err(TraceError::NoTriangles);
+    }
+    let bounds = mesh_boxes(vertices, indices, &mut ctx.aabbs)?;
+    let p = bounds.prim;
+    let max_abs = p.min.abs().max_element().max(p.max.abs().max_element());
+    let bvh2 = bvh2_of_boxes(opts, ctx)?;
+    let mesh = Indexed { vertices, indices };
+    let r = bvh.rebuild_from_own_mesh(&bvh2.0, mesh, max_abs, width, &mut ctx.collapse);
+    ctx.recycle(bvh2);
     r
 }
 
@@ -725,35 +728,13 @@ impl BuildContext {
     }
 }
 
-/// The triangles of an indexed mesh (an index naming no vertex is an error).
-fn gather_triangles(
-    vertices: &[Vec3],
-    indices: &[[u32; 3]],
-    tris: &mut Vec<[Vec3; 3]>,
-) -> Result<(), TraceError> {
-    tris.clear();
-    tris.reserve(indices.len());
-    for (i, t) in indices.iter().enumerate() {
-        let mut v = [Vec3::ZERO; 3];
-        for (k, &ix) in t.iter().enumerate() {
-            v[k] = *vertices.get(ix as usize).ok_or(TraceError::BadIndex {
-                tri: i,
-                index: ix,
-                vertices: vertices.len(),
-            })?;
-        }
-        tris.push(v);
-    }
-    Ok(())
-}
-
 /// The BVH2 a preset and its overrides ask for, built by the LBVH / binned-SAH pipeline.
 pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceError> {
     build_bvh2_in(tris, opts, &mut BuildContext::new()).map(|b| b.0)
 }
 
-/// [`build_bvh2`] in the buffers of `ctx` (its boxes left holding the triangles' boxes); true
-/// when the binned builder made the tree (in the binned buffers).
+/// [`build_bvh2`] in the buffers of `ctx`; true when the binned builder made the tree (in the
+/// binned buffers).
 fn build_bvh2_in(
     tris: &[[Vec3; 3]],
     opts: &BuildOptions,
@@ -772,6 +753,13 @@ fn build_bvh2_in(
         tris.par_iter()
             .map(|t| Aabb::from_triangle(t[0], t[1], t[2])),
     );
+    bvh2_of_boxes(opts, ctx)
+}
+
+/// The BVH2 `opts` ask for over the (checked, non-empty) triangle boxes in `ctx.aabbs`, in the
+/// buffers of `ctx` (the boxes stay there); true when the binned builder made it.
+fn bvh2_of_boxes(opts: &BuildOptions, ctx: &mut BuildContext) -> Result<(Bvh, bool), TraceError> {
+    let aabbs = &mut ctx.aabbs;
     let (builder, layout, restructure) = opts.resolve();
     let max_leaf = opts.leaf_size.unwrap_or(DEFAULT_LEAF_SIZE);
     if max_leaf == 0 {

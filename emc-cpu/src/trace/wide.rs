@@ -176,6 +176,65 @@ pub struct WideNodeN<const W: usize> {
     pub child: [u32; W],
 }
 
+/// The triangles a collapse reads, by id: a triangle list, or an indexed mesh.
+pub(crate) trait Corners: Sync {
+    /// Number of triangles.
+    fn count(&self) -> usize;
+    /// Triangle `id`'s corners.
+    fn corners(&self, id: u32) -> [Vec3A; 3];
+    /// Hint the cache to fetch what [`Corners::corners`] of `id` will read (as far as it can
+    /// without waiting for a load).
+    fn prefetch(&self, id: u32);
+}
+
+impl Corners for [[Vec3; 3]] {
+    #[inline(always)]
+    fn count(&self) -> usize {
+        self.len()
+    }
+
+    #[inline(always)]
+    fn corners(&self, id: u32) -> [Vec3A; 3] {
+        self[id as usize].map(Vec3A::from)
+    }
+
+    #[inline(always)]
+    fn prefetch(&self, id: u32) {
+        // Both ends: a triangle's 36 bytes may straddle two lines.
+        if let Some(t) = self.get(id as usize) {
+            prefetch(&t[0].x, 1);
+            prefetch(&t[2].z, 1);
+        }
+    }
+}
+
+/// An indexed mesh whose indices are checked (every one names a vertex).
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Indexed<'a> {
+    pub vertices: &'a [Vec3],
+    pub indices: &'a [[u32; 3]],
+}
+
+impl Corners for Indexed<'_> {
+    #[inline(always)]
+    fn count(&self) -> usize {
+        self.indices.len()
+    }
+
+    #[inline(always)]
+    fn corners(&self, id: u32) -> [Vec3A; 3] {
+        self.indices[id as usize].map(|i| Vec3A::from(self.vertices[i as usize]))
+    }
+
+    #[inline(always)]
+    fn prefetch(&self, id: u32) {
+        // The indices only: the corners' addresses need them loaded.
+        if let Some(t) = self.indices.get(id as usize) {
+            prefetch(t, 12);
+        }
+    }
+}
+
 /// A node of the 4-wide tree.
 pub type WideNode = WideNodeN<WIDTH>;
 /// A node of the 8-wide tree.
@@ -266,24 +325,6 @@ impl WideBvh {
         WideBvh::collapse_width(bvh, tris, width, false, WideBvh::empty(), scratch)
     }
 
-    /// [`WideBvh::from_bvh2_width`] into this structure, for a BVH2 from this crate's own
-    /// builders, the node and packet buffers of the structure reused (a rebuild faults no
-    /// fresh pages for them and frees nothing). The validation is skipped in release builds
-    /// (debug builds and the tests still run it), because those builders place every
-    /// triangle once and bound it by construction. On an error the structure is left empty.
-    pub(crate) fn rebuild_from_own_bvh2(
-        &mut self,
-        bvh: &Bvh,
-        tris: &[[Vec3; 3]],
-        width: usize,
-        scratch: &mut CollapseScratch,
-    ) -> Result<(), TraceError> {
-        let old = std::mem::replace(self, WideBvh::empty());
-        let trusted = !cfg!(debug_assertions);
-        *self = WideBvh::collapse_width(bvh, tris, width, trusted, old, scratch)?;
-        Ok(())
-    }
-
     fn collapse_width(
         bvh: &Bvh,
         tris: &[[Vec3; 3]],
@@ -368,6 +409,54 @@ impl WideBvh {
             .iter()
             .flatten()
             .fold(0.0f32, |m, v| m.max(v.abs().max_element()));
+        WideBvh::collapse_checked(bvh, tris, max_abs, four, eight, old, scratch)
+    }
+
+    /// [`WideBvh::from_bvh2_width`] into this structure, for a BVH2 from this crate's own
+    /// builders over an indexed mesh whose indices and vertices are checked (largest absolute
+    /// coordinate `max_abs`): the corners are read through the indices (no triangle list), and
+    /// the node and packet buffers of the structure and the plans of `scratch` are reused (a
+    /// rebuild faults no fresh pages for them and frees nothing). The BVH2's validation runs
+    /// in debug builds only (the tests validate the wide trees), because those builders place every triangle
+    /// once and bound it by construction. On an error the structure is left empty.
+    pub(crate) fn rebuild_from_own_mesh(
+        &mut self,
+        bvh: &Bvh,
+        mesh: Indexed<'_>,
+        max_abs: f32,
+        width: usize,
+        scratch: &mut CollapseScratch,
+    ) -> Result<(), TraceError> {
+        let n = mesh.count();
+        if n > MAX_TRIANGLES {
+            return Err(TraceError::TooManyTriangles(n));
+        }
+        if cfg!(debug_assertions) {
+            let aabbs: Vec<Aabb> = (0..n as u32)
+                .map(|i| {
+                    let [a, b, c] = mesh.corners(i).map(Vec3::from);
+                    Aabb::from_triangle(a, b, c)
+                })
+                .collect();
+            bvh.validate(&aabbs).map_err(TraceError::InvalidBvh)?;
+        }
+        let old = std::mem::replace(self, WideBvh::empty());
+        let (four, eight) = (width != WIDTH8, width != WIDTH);
+        *self = WideBvh::collapse_checked(bvh, &mesh, max_abs, four, eight, old, scratch)?;
+        Ok(())
+    }
+
+    /// The collapse of a BVH2 checked against `tris` (at least one triangle, every corner
+    /// finite, largest absolute coordinate `max_abs`).
+    fn collapse_checked<T: Corners + ?Sized>(
+        bvh: &Bvh,
+        tris: &T,
+        max_abs: f32,
+        four: bool,
+        eight: bool,
+        old: WideBvh,
+        scratch: &mut CollapseScratch,
+    ) -> Result<WideBvh, TraceError> {
         // Child boxes are padded by 2^-16 of the largest coordinate: the triangle test rounds
         // `vertex − origin` to ulps of the coordinates, so with needles thinner than an ulp it
         // can report a hit a hair outside the exact box; the pad (2^7 ulps) keeps such hits
@@ -375,7 +464,7 @@ impl WideBvh {
         let pad = max_abs * (1.0 / 65536.0);
         // The buffers of `old` (empty for a first build), cleared.
         let (old4, old8, mut packets) = (old.nodes, old.nodes8, old.packets);
-        crate::buffers::cleared_with_room(&mut packets, tris.len() / 2);
+        crate::buffers::cleared_with_room(&mut packets, tris.count() / 2);
         let mut leaves = 0;
         let CollapseScratch {
             plan4,
@@ -402,7 +491,7 @@ impl WideBvh {
                 nodes,
                 nodes8: Vec::new(),
                 packets,
-                triangles: tris.len(),
+                triangles: tris.count(),
                 max_abs,
                 depth,
                 depth8: 0,
@@ -441,7 +530,7 @@ impl WideBvh {
             nodes,
             nodes8,
             packets,
-            triangles: tris.len(),
+            triangles: tris.count(),
             max_abs,
             depth,
             depth8,
@@ -917,12 +1006,12 @@ const LEAF_AHEAD: usize = 16;
 
 /// Append the triangle packets of BVH2 node `n`'s subtree (one leaf of the wide trees) and
 /// return its child code.
-fn emit_leaf(
+fn emit_leaf<T: Corners + ?Sized>(
     packets: &mut Vec<TriPacket>,
     (prims, stack): &mut (Vec<u32>, Vec<u32>),
     bvh: &Bvh,
     n: u32,
-    tris: &[[Vec3; 3]],
+    tris: &T,
 ) -> u32 {
     prims.clear();
     stack.clear();
@@ -932,15 +1021,11 @@ fn emit_leaf(
         if node.is_leaf() {
             let f = node.first() as usize;
             let range = f..f + node.count() as usize;
-            // The corners of the triangles a little further on (both ends of each: a
-            // triangle's 36 bytes may straddle two lines).
+            // What the triangles a little further on will read.
             let ahead = (range.start + LEAF_AHEAD).min(bvh.prim_indices.len())
                 ..(range.end + LEAF_AHEAD).min(bvh.prim_indices.len());
             for &id in &bvh.prim_indices[ahead] {
-                if let Some(t) = tris.get(id as usize) {
-                    prefetch(&t[0].x, 1);
-                    prefetch(&t[2].z, 1);
-                }
+                tris.prefetch(id);
             }
             prims.extend_from_slice(&bvh.prim_indices[range]);
         } else {
@@ -953,8 +1038,7 @@ fn emit_leaf(
     let k = chunks.len();
     for (c, chunk) in chunks.enumerate() {
         let lane = |l: usize| chunk[l.min(chunk.len() - 1)];
-        let corners: [[Vec3A; 3]; WIDTH] =
-            core::array::from_fn(|l| tris[lane(l) as usize].map(Vec3A::from));
+        let corners: [[Vec3A; 3]; WIDTH] = core::array::from_fn(|l| tris.corners(lane(l)));
         packets.push(TriPacket::from_lanes(
             core::array::from_fn(|l| &corners[l]),
             core::array::from_fn(lane),

@@ -784,15 +784,7 @@ pub fn build_fast<const W: usize>(
         return Err(TraceError::TooManyTriangles(n));
     }
     let t0 = Instant::now();
-    check_indices(vertices, indices)?;
-    crate::buffers::resized_par(&mut scratch.aabbs, n, Aabb::EMPTY);
-    let bounds = crate::aabbs::triangle_aabbs_bounds(vertices, indices, &mut scratch.aabbs)
-        .map_err(|e| match e {
-            emc_core::Error::NonFinite(i) | emc_core::Error::InvertedBox(i) => {
-                TraceError::NonFinite(i)
-            }
-            e => TraceError::Encode(e),
-        })?;
+    let bounds = mesh_boxes(vertices, indices, &mut scratch.aabbs)?;
     let p = bounds.prim;
     let max_abs = p.min.abs().max_element().max(p.max.abs().max_element());
     let pad = max_abs * (1.0 / 65536.0);
@@ -907,6 +899,22 @@ fn finish_tree<K: RadixKey, const W: usize>(
         leaves: out.leaves,
         depth,
         max_abs,
+    })
+}
+
+/// Check the mesh (every index names a vertex, every corner is finite) and write its triangle
+/// boxes into `aabbs` (resized to one per triangle, its allocation reused), returning their
+/// bounds: one SIMD pass over the triangles after the checks.
+pub(crate) fn mesh_boxes(
+    vertices: &[Vec3],
+    indices: &[[u32; 3]],
+    aabbs: &mut Vec<Aabb>,
+) -> Result<emc_core::SceneBounds, TraceError> {
+    check_indices(vertices, indices)?;
+    crate::buffers::resized_par(aabbs, indices.len(), Aabb::EMPTY);
+    crate::aabbs::triangle_aabbs_bounds(vertices, indices, aabbs).map_err(|e| match e {
+        emc_core::Error::NonFinite(i) | emc_core::Error::InvertedBox(i) => TraceError::NonFinite(i),
+        e => TraceError::Encode(e),
     })
 }
 
