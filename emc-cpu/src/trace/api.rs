@@ -292,12 +292,12 @@ struct SpareLists {
     indices: Vec<Vec<[u32; 3]>>,
 }
 
-/// Keep `v` (emptied) in `list` if it is among the largest [`SPARE_PER_KIND`].
-fn keep_spare<T>(list: &mut Vec<Vec<T>>, mut v: Vec<T>) {
+/// Keep `v` in `list` if it is among the largest [`SPARE_PER_KIND`] (with its elements: the
+/// builders that write in place keep them until they are overwritten; the others clear).
+fn keep_spare<T>(list: &mut Vec<Vec<T>>, v: Vec<T>) {
     if v.capacity() == 0 {
         return;
     }
-    v.clear();
     if list.len() < SPARE_PER_KIND {
         list.push(v);
     } else if let Some(small) = list.iter_mut().min_by_key(|x| x.capacity()) {
@@ -307,7 +307,7 @@ fn keep_spare<T>(list: &mut Vec<Vec<T>>, mut v: Vec<T>) {
     }
 }
 
-/// The largest buffer of `list` (empty), or a new empty one.
+/// The largest buffer of `list` (it may still hold elements), or a new empty one.
 fn take_spare<T>(list: &mut Vec<Vec<T>>) -> Vec<T> {
     let best = (0..list.len()).max_by_key(|&i| list[i].capacity());
     best.map(|i| list.swap_remove(i)).unwrap_or_default()
@@ -426,7 +426,9 @@ impl Accel {
             vertices,
             indices,
         )?;
+        vert_copy.clear();
         vert_copy.extend_from_slice(vertices);
+        index_copy.clear();
         index_copy.extend_from_slice(indices);
         a.vertices = vert_copy;
         a.indices = index_copy;

@@ -572,13 +572,18 @@ pub fn build_tree<K: RadixKey, const W: usize>(
     out: &mut Outputs<'_, W>,
     groups: &mut Vec<GroupOut<W>>,
 ) -> Result<usize, TraceError> {
-    out.nodes.clear();
-    out.packets.clear();
     out.leaves = 0;
     let n = inp.keys.len() as u32;
     let mut ranges = Vec::with_capacity((n / BLOCK) as usize * 2 + 1);
     let mut top = Vec::with_capacity(ranges.capacity());
     let root = partition(inp, 0, n, &mut ranges, &mut top);
+    let parallel = rayon::current_num_threads() > 1 && ranges.len() > 1;
+    if !parallel {
+        // Built by pushes. (The parallel phase overwrites the buffers' old elements in place
+        // instead, so they keep them until then.)
+        out.nodes.clear();
+        out.packets.clear();
+    }
     if root & REF_FLAG != 0 {
         // One block: its root node is node 0, or a root with one lane holds its leaf.
         let f = build_block(inp, 0, n, out);
@@ -589,11 +594,11 @@ pub fn build_tree<K: RadixKey, const W: usize>(
         }
         return Ok(f.height.saturating_sub(1));
     }
-    // Node 0 is kept for the root.
-    out.nodes.push(WideNodeN::empty());
-    let blocks = if rayon::current_num_threads() > 1 && ranges.len() > 1 {
+    let blocks = if parallel {
         build_blocks_parallel(inp, &ranges, out, groups)
     } else {
+        // Node 0 is kept for the root.
+        out.nodes.push(WideNodeN::empty());
         let mut blocks = Vec::with_capacity(ranges.len());
         for &(b, e) in &ranges {
             blocks.push(build_block(inp, b, e, out));
@@ -673,12 +678,12 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
         }
         o.leaves = go.leaves;
     });
-    // Offsets of every group's nodes (after node 0) and packets.
+    // Offsets of every group's nodes (after node 0, kept for the root) and packets.
     let (mut node_off, mut packet_off) = (
         Vec::with_capacity(outs.len()),
         Vec::with_capacity(outs.len()),
     );
-    let (mut nn, mut np) = (out.nodes.len(), out.packets.len());
+    let (mut nn, mut np) = (1usize, 0usize);
     for o in outs.iter() {
         node_off.push(nn as u32);
         packet_off.push(np as u32);
@@ -695,27 +700,28 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
             c + no
         }
     };
-    // Every element placed by an indexed parallel iterator, written straight into the output's
-    // capacity (no fill pass before the copy): element `i` comes from the group whose offset
-    // range holds it.
-    let base_n = out.nodes.len() as u32;
-    let base_p = out.packets.len() as u32;
+    // Each group copied into its place in parallel, over the buffers' old elements (a reused
+    // buffer is neither cleared nor filled; only a longer tail is written first): one memcpy
+    // per group for the packets, one pass shifting the child codes for the nodes.
+    crate::buffers::resized(out.nodes, nn, WideNodeN::empty());
+    crate::buffers::resized(out.packets, np, TriPacket::blank(0, true));
+    let node_slices = split_by_len(&mut out.nodes[1..], outs.iter().map(|o| o.nodes.len()));
+    let packet_slices = split_by_len(&mut out.packets[..], outs.iter().map(|o| o.packets.len()));
     let groups: &[GroupOut<W>] = outs;
-    let (no, po) = (&node_off, &packet_off);
-    out.nodes
-        .par_extend((base_n..nn as u32).into_par_iter().map(|i| {
-            let g = no.partition_point(|&o| o <= i) - 1;
-            let mut d = groups[g].nodes[(i - no[g]) as usize];
-            for c in d.child.iter_mut() {
-                *c = shift(*c, no[g], po[g]);
+    node_slices
+        .into_par_iter()
+        .zip(packet_slices)
+        .zip(groups)
+        .enumerate()
+        .for_each(|(g, ((dn, dp), o))| {
+            dp.copy_from_slice(&o.packets);
+            for (d, s) in dn.iter_mut().zip(&o.nodes) {
+                *d = *s;
+                for c in d.child.iter_mut() {
+                    *c = shift(*c, node_off[g], packet_off[g]);
+                }
             }
-            d
-        }));
-    out.packets
-        .par_extend((base_p..np as u32).into_par_iter().map(|i| {
-            let g = po.partition_point(|&o| o <= i) - 1;
-            groups[g].packets[(i - po[g]) as usize]
-        }));
+        });
     let mut blocks = Vec::with_capacity(ranges.len());
     for (g, o) in outs.iter().enumerate() {
         for f in &o.blocks {
@@ -726,6 +732,17 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
         }
     }
     blocks
+}
+
+/// `v` cut into consecutive pieces of the given lengths (which must sum to at most its length).
+fn split_by_len<T>(mut v: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
+    let mut out = Vec::new();
+    for l in lens {
+        let (a, b) = v.split_at_mut(l);
+        out.push(a);
+        v = b;
+    }
+    out
 }
 
 /// Buffers of the fast build kept between builds ([`crate::trace::Accel::rebuild`] reuses
@@ -881,8 +898,9 @@ fn finish_tree<K: RadixKey, const W: usize>(
 ) -> Result<FastTree, TraceError> {
     let n = inp.keys.len();
     let fresh = packets.capacity() == 0;
-    nodes.reserve(n / (2 * W) + 1);
-    packets.reserve(n / 2 + 1);
+    // Room for the expected tree (the buffers may still hold a previous build's elements).
+    nodes.reserve((n / (2 * W) + 1).saturating_sub(nodes.len()));
+    packets.reserve((n / 2 + 1).saturating_sub(packets.len()));
     if fresh {
         crate::hugepage::advise(packets);
         crate::hugepage::advise(nodes);
