@@ -236,8 +236,9 @@ pub fn default_width() -> usize {
 /// Build many meshes in one context ([`Accel::build_in`], [`Accel::rebuild_in`]) and only the
 /// first build faults in fresh memory for what later ones reuse (the structures themselves
 /// hold no scratch); a plain [`Accel::build`] keeps a context of its own inside the structure
-/// for its [`Accel::rebuild`]s. What a build makes never depends on what the context held
-/// before.
+/// for its [`Accel::rebuild`]s (all of it for the fast preset, only the boxes for the others,
+/// whose builders' arrays outweigh the tree). What a build makes never depends on what the
+/// context held before.
 ///
 /// ```
 /// use emc_cpu::{Accel, BuildContext, BuildOptions, Preset};
@@ -272,6 +273,32 @@ impl BuildContext {
     pub fn new() -> BuildContext {
         BuildContext::default()
     }
+
+    /// Give back every buffer the context holds (its next build allocates afresh).
+    pub fn clear(&mut self) {
+        *self = BuildContext::default();
+    }
+
+    /// What a structure's own context keeps after a plain build or rebuild with `opts`: all
+    /// of it for the fast path (rebuilt every frame, its scratch is ~100 bytes per triangle),
+    /// only the triangle boxes for the others, whose builders' arrays (~250 bytes per
+    /// triangle for binned SAH) would otherwise outweigh the tree; they are made afresh by
+    /// the next rebuild. A shared context ([`Accel::build_in`]) keeps everything.
+    fn keep_for(&mut self, opts: &BuildOptions) {
+        if !fast_path(opts) {
+            self.binned = BinnedScratch::default();
+            self.arena = BuildArena::default();
+            self.collapse = CollapseScratch::default();
+        }
+    }
+}
+
+/// Whether `opts` build on the fast path (the radix tree straight to the wide tree).
+fn fast_path(opts: &BuildOptions) -> bool {
+    let (builder, _, restructure) = opts.resolve();
+    matches!(builder, Builder::Lbvh | Builder::LbvhApetrei)
+        && !restructure
+        && opts.leaf_size.is_none_or(|l| l == DEFAULT_LEAF_SIZE)
 }
 
 /// Buffers of dropped structures, waiting for the next build of their context: at most
@@ -389,6 +416,7 @@ impl Accel {
         let mut a = Accel::build_in(&mut ctx, vertices, indices, opts)?;
         // The structure's own context: nothing to give back to on drop.
         a.spare = None;
+        ctx.keep_for(opts);
         a.ctx = ctx;
         Ok(a)
     }
@@ -450,14 +478,16 @@ impl Accel {
 
     /// Rebuild over new positions of the same mesh: `vertices` replaces the vertices of the
     /// build (same count, same indices; for [`Accel::from_triangles`] the triangles' corners in
-    /// order), with the same options, in the structure's own buffers (those of its last
-    /// plain build or rebuild: every scratch buffer and the wide tree's nodes and packets).
+    /// order), with the same options, in the structure's own buffers (the wide tree's nodes
+    /// and packets, and what its own context keeps: every scratch buffer of the fast preset,
+    /// the boxes of the others; see [`BuildContext`] to keep all of them).
     /// Fails, leaving the structure as it was, on a vertex count that differs from the build's
     /// or on a non-finite vertex; a tree too deep to trace is an error that leaves the
     /// structure empty.
     pub fn rebuild(&mut self, vertices: &[Vec3]) -> Result<(), TraceError> {
         let mut ctx = std::mem::take(&mut self.ctx);
         let r = self.rebuild_in(&mut ctx, vertices);
+        ctx.keep_for(&self.opts);
         self.ctx = ctx;
         r
     }
@@ -661,14 +691,11 @@ fn build_over(
     vertices: &[Vec3],
     indices: &[[u32; 3]],
 ) -> Result<(), TraceError> {
-    let (builder, layout, restructure) = opts.resolve();
+    let (_, layout, _) = opts.resolve();
     // The radix tree (Karras = Apetrei) without restructuring goes straight to the wide
     // tree; the other builders make a BVH2 that is then collapsed.
-    let fast = matches!(builder, Builder::Lbvh | Builder::LbvhApetrei)
-        && !restructure
-        && opts.leaf_size.is_none_or(|l| l == DEFAULT_LEAF_SIZE);
     *phases = FastTimes::default();
-    if fast {
+    if fast_path(opts) {
         return if width == WIDTH8 {
             let mut nodes = std::mem::take(&mut bvh.nodes8);
             let mut packets = std::mem::take(&mut bvh.packets);
