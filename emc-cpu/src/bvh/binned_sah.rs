@@ -185,14 +185,6 @@ impl BinnedScratch {
         }
         self.prim_indices = bvh.prim_indices;
     }
-
-    /// Bytes held.
-    pub fn capacity_bytes(&self) -> usize {
-        (self.src.capacity() + self.dst.capacity()) * core::mem::size_of::<PrimRef>()
-            + (self.nodes.capacity() + self.compact.capacity()) * core::mem::size_of::<Node>()
-            + self.prim_indices.capacity() * 4
-            + self.tags.capacity() * 4
-    }
 }
 
 /// [`build_binned_sah_leaves`] in the buffers of `scratch` (a warm build faults no fresh
