@@ -696,39 +696,31 @@ fn build_over(
     // tree; the other builders make a BVH2 that is then collapsed.
     *phases = FastTimes::default();
     if fast_path(opts) {
-        return if width == WIDTH8 {
-            let mut nodes = std::mem::take(&mut bvh.nodes8);
-            let mut packets = std::mem::take(&mut bvh.packets);
-            let r = build_fast::<WIDTH8>(
+        // Straight into the structure's buffers; the other width's tree is emptied.
+        let r = if width == WIDTH8 {
+            bvh.nodes.clear();
+            build_fast::<WIDTH8>(
                 vertices,
                 indices,
                 &layout,
                 &mut ctx.fast8,
-                &mut nodes,
-                &mut packets,
+                &mut bvh.nodes8,
+                &mut bvh.packets,
                 phases,
-            );
-            bvh.nodes.clear();
-            bvh.nodes8 = nodes;
-            bvh.packets = packets;
-            r.map(|t| bvh.set_fast(indices.len(), t, WIDTH8))
+            )
         } else {
-            let mut nodes = std::mem::take(&mut bvh.nodes);
-            let mut packets = std::mem::take(&mut bvh.packets);
-            let r = build_fast::<WIDTH>(
+            bvh.nodes8.clear();
+            build_fast::<WIDTH>(
                 vertices,
                 indices,
                 &layout,
                 &mut ctx.fast4,
-                &mut nodes,
-                &mut packets,
+                &mut bvh.nodes,
+                &mut bvh.packets,
                 phases,
-            );
-            bvh.nodes8.clear();
-            bvh.nodes = nodes;
-            bvh.packets = packets;
-            r.map(|t| bvh.set_fast(indices.len(), t, WIDTH))
+            )
         };
+        return r.map(|t| bvh.set_fast(indices.len(), t, width));
     }
     // The mesh is checked and boxed in one pass; the collapse reads the corners through the
     // indices (no triangle list is made).

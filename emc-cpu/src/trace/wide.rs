@@ -417,8 +417,9 @@ impl WideBvh {
     /// coordinate `max_abs`): the corners are read through the indices (no triangle list), and
     /// the node and packet buffers of the structure and the plans of `scratch` are reused (a
     /// rebuild faults no fresh pages for them and frees nothing). The BVH2's validation runs
-    /// in debug builds only (the tests validate the wide trees), because those builders place every triangle
-    /// once and bound it by construction. On an error the structure is left empty.
+    /// in debug builds only (the tests validate the wide trees), because those builders place
+    /// every triangle once and bound it by construction. On an error the structure is left
+    /// empty.
     pub(crate) fn rebuild_from_own_mesh(
         &mut self,
         bvh: &Bvh,
