@@ -125,6 +125,8 @@ pub struct PreRay {
     pub dir: [f32; 3],
     /// Component-wise reciprocal of the direction.
     pub inv: [f32; 3],
+    /// `inv` times [`FAR_WIDEN`]: the far slab distance's factor (see [`slab_test`]).
+    pub inv_far: [f32; 3],
     /// Per axis: the near plane is the box's max (direction sign bit set).
     pub near_is_max: [bool; 3],
     /// Permuted axes of the watertight test.
@@ -168,6 +170,7 @@ impl PreRay {
             org,
             dir,
             inv,
+            inv_far: inv.map(|i| i * FAR_WIDEN),
             near_is_max,
             k: [kx, ky, kz],
             shear,
@@ -201,7 +204,10 @@ pub fn min_sse(a: f32, b: f32) -> f32 {
 ///
 /// Returns the entry distance when the ray's interval `[tnear, tfar]` meets the box. The far
 /// distance of each slab is widened by [`FAR_WIDEN`] (Ize 2013), so rounding never culls a box
-/// the exact ray touches. A zero direction component gives `inv = ±inf`; a slab distance is
+/// the exact ray touches: it is `(fp − o) · inv_far` with `inv_far = inv · FAR_WIDEN` rounded
+/// once per ray, three roundings on the way from `(fp − o) · inv` as in Ize's
+/// `((fp − o) · inv) · FAR_WIDEN`, so the same factor covers them, with one multiplication
+/// less per box. A zero direction component gives `inv = ±inf`; a slab distance is
 /// then `±inf` (origin inside/outside the slab) or NaN (origin exactly on the plane), and the
 /// NaN is discarded by the operand order of [`max_sse`]/[`min_sse`], which keeps the interval
 /// unchanged: no NaN ever escapes. An empty box (min = +inf, max = −inf) never passes.
@@ -216,7 +222,7 @@ pub fn slab_test(r: &PreRay, min: [f32; 3], max: [f32; 3], tfar: f32) -> Option<
             (min[a], max[a])
         };
         let tn = (np - r.org[a]) * r.inv[a];
-        let tf = (fp - r.org[a]) * r.inv[a] * FAR_WIDEN;
+        let tf = (fp - r.org[a]) * r.inv_far[a];
         t0 = max_sse(tn, t0);
         t1 = min_sse(tf, t1);
     }

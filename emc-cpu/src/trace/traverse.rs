@@ -280,7 +280,7 @@ mod avx512 {
     use core::arch::x86_64::*;
 
     use super::LaneHitsN;
-    use crate::trace::intersect::{PreRay, FAR_WIDEN};
+    use crate::trace::intersect::PreRay;
     use crate::trace::wide::{WideNode8, WIDTH8};
 
     /// Ray constants of the AVX-512 test.
@@ -288,18 +288,17 @@ mod avx512 {
     /// An axis's two plane rows are adjacent in a node, so one 16-lane load holds them:
     /// ```text
     ///   lanes 0..8: planes[2a] (child minima)   lanes 8..16: planes[2a + 1] (maxima)
-    ///   (p - org) * inv, then permuted so that lanes 0..8 hold the near plane's distances
-    ///   and lanes 8..16 the far plane's; the far half is widened, the near half times 1.0.
+    ///   (p - org) * inv16, inv16 = inv on the near plane's half, inv_far on the far one's,
+    ///   then permuted so that lanes 0..8 hold the near plane's distances, 8..16 the far's
     ///   acc: lanes 0..8 = t0 (max over axes), lanes 8..16 = t1 (min over axes)
     /// ```
     #[derive(Clone, Copy, Debug)]
     pub struct Avx512Ray {
         org: [__m512; 3],
+        /// Per axis: `inv` in the near plane's half, `inv_far` in the far plane's.
         inv: [__m512; 3],
         /// Per axis: identity when the near plane is the minimum, else the two halves swapped.
         perm: [__m512i; 3],
-        /// 1.0 in lanes 0..8, [`FAR_WIDEN`] in lanes 8..16.
-        widen: __m512,
         tnear: __m512,
     }
 
@@ -315,13 +314,16 @@ mod avx512 {
                 let swap = _mm512_setr_epi32(8, 9, 10, 11, 12, 13, 14, 15, 0, 1, 2, 3, 4, 5, 6, 7);
                 Avx512Ray {
                     org: r.org.map(|o| _mm512_set1_ps(o)),
-                    inv: r.inv.map(|i| _mm512_set1_ps(i)),
+                    inv: [0, 1, 2].map(|a| {
+                        // Lanes 8..16 hold the maxima: the far plane's unless the near is max.
+                        let far_high = if r.near_is_max[a] { 0x00FF } else { 0xFF00 };
+                        _mm512_mask_blend_ps(
+                            far_high,
+                            _mm512_set1_ps(r.inv[a]),
+                            _mm512_set1_ps(r.inv_far[a]),
+                        )
+                    }),
                     perm: r.near_is_max.map(|m| if m { swap } else { id }),
-                    widen: _mm512_mask_blend_ps(
-                        0xFF00,
-                        _mm512_set1_ps(1.0),
-                        _mm512_set1_ps(FAR_WIDEN),
-                    ),
                     tnear: _mm512_set1_ps(r.tnear),
                 }
             }
@@ -340,8 +342,7 @@ mod avx512 {
         }
 
         /// The eight slab tests of `node`, lane for lane the same operations as `slab_test`:
-        /// `(p - o) · inv` per plane, the far one times [`FAR_WIDEN`] (the near one times
-        /// 1.0, which changes no value), then `max(tn, t0)` / `min(tf, t1)` in that operand
+        /// `(p - o) · inv` on the near plane, `(p - o) · inv_far` on the far one, then `max(tn, t0)` / `min(tf, t1)` in that operand
         /// order (`vmaxps`/`vminps` discard NaN as `max_sse`/`min_sse` do).
         #[inline(always)]
         pub fn test(&self, node: &WideNode8, tfar: f32) -> LaneHitsN<WIDTH8> {
@@ -355,7 +356,7 @@ mod avx512 {
                 for a in 0..3 {
                     let p = _mm512_load_ps(rows.add(16 * a));
                     let t = _mm512_mul_ps(_mm512_sub_ps(p, self.org[a]), self.inv[a]);
-                    let t = _mm512_mul_ps(_mm512_permutexvar_ps(self.perm[a], t), self.widen);
+                    let t = _mm512_permutexvar_ps(self.perm[a], t);
                     acc = _mm512_mask_max_ps(acc, 0x00FF, t, acc);
                     acc = _mm512_mask_min_ps(acc, 0xFF00, t, acc);
                 }
@@ -426,7 +427,7 @@ mod avx {
     use core::arch::x86_64::*;
 
     use super::LaneHitsN;
-    use crate::trace::intersect::{PreRay, FAR_WIDEN};
+    use crate::trace::intersect::PreRay;
     use crate::trace::wide::{WideNode8, WIDTH8};
 
     /// Ray constants broadcast to all eight lanes (what both AVX2 node tests share).
@@ -434,8 +435,8 @@ mod avx {
     struct Broadcast {
         org: [__m256; 3],
         inv: [__m256; 3],
+        inv_far: [__m256; 3],
         tnear: __m256,
-        widen: __m256,
     }
 
     impl Broadcast {
@@ -448,8 +449,8 @@ mod avx {
                 Broadcast {
                     org: r.org.map(|o| _mm256_set1_ps(o)),
                     inv: r.inv.map(|i| _mm256_set1_ps(i)),
+                    inv_far: r.inv_far.map(|i| _mm256_set1_ps(i)),
                     tnear: _mm256_set1_ps(r.tnear),
-                    widen: _mm256_set1_ps(FAR_WIDEN),
                 }
             }
         }
@@ -493,10 +494,7 @@ mod avx {
                     let np = _mm256_load_ps(rows.add(near[a]));
                     let fp = _mm256_load_ps(rows.add(far[a]));
                     let tn = _mm256_mul_ps(_mm256_sub_ps(np, self.org[a]), self.inv[a]);
-                    let tf = _mm256_mul_ps(
-                        _mm256_mul_ps(_mm256_sub_ps(fp, self.org[a]), self.inv[a]),
-                        self.widen,
-                    );
+                    let tf = _mm256_mul_ps(_mm256_sub_ps(fp, self.org[a]), self.inv_far[a]);
                     t0 = _mm256_max_ps(tn, t0);
                     t1 = _mm256_min_ps(tf, t1);
                 }
@@ -617,7 +615,7 @@ mod sse {
     use core::arch::x86_64::*;
 
     use super::{LaneHits, PacketHits};
-    use crate::trace::intersect::{PreRay, FAR_WIDEN};
+    use crate::trace::intersect::PreRay;
     use crate::trace::wide::{TriPacket, WideNode};
 
     /// Ray constants broadcast to all lanes.
@@ -625,10 +623,10 @@ mod sse {
     pub struct SseRay {
         org: [__m128; 3],
         inv: [__m128; 3],
+        inv_far: [__m128; 3],
         /// Plane row of the near plane per axis (`2a` or `2a + 1`).
         near: [usize; 3],
         tnear: __m128,
-        widen: __m128,
         k: [usize; 3],
         shear: [__m128; 3],
     }
@@ -651,9 +649,9 @@ mod sse {
                 SseRay {
                     org,
                     inv: r.inv.map(|i| _mm_set1_ps(i)),
+                    inv_far: r.inv_far.map(|i| _mm_set1_ps(i)),
                     near,
                     tnear,
-                    widen: _mm_set1_ps(FAR_WIDEN),
                     k: r.k,
                     shear: r.shear.map(|x| _mm_set1_ps(x)),
                 }
@@ -661,7 +659,7 @@ mod sse {
         }
 
         /// The four slab tests of `node` in one go, operation for operation the same as
-        /// `slab_test` (sub, mul, widen-mul, then `max(tn, t0)` / `min(tf, t1)` whose operand
+        /// `slab_test` (sub, mul by `inv` or `inv_far`, then `max(tn, t0)` / `min(tf, t1)` whose operand
         /// order discards NaN exactly as `max_sse`/`min_sse` do).
         #[inline(always)]
         pub fn test(&self, node: &WideNode, tfar: f32) -> LaneHits {
@@ -692,10 +690,7 @@ mod sse {
                     let np = _mm_loadu_ps(plane(n).as_ptr());
                     let fp = _mm_loadu_ps(plane(f).as_ptr());
                     let tn = _mm_mul_ps(_mm_sub_ps(np, self.org[a]), self.inv[a]);
-                    let tf = _mm_mul_ps(
-                        _mm_mul_ps(_mm_sub_ps(fp, self.org[a]), self.inv[a]),
-                        self.widen,
-                    );
+                    let tf = _mm_mul_ps(_mm_sub_ps(fp, self.org[a]), self.inv_far[a]);
                     t0 = _mm_max_ps(tn, t0);
                     t1 = _mm_min_ps(tf, t1);
                 }
@@ -707,14 +702,15 @@ mod sse {
         }
 
         /// The watertight test of four triangles, lane for lane the same operations as
-        /// `triangle_test`. Returns the lanes that hit in `[tnear, tmax]`, the lanes with a
-        /// zero edge function (to be redone by the scalar test, which falls back to `f64`),
-        /// and per lane `t`, the two edge functions of vertices 1 and 2, and `det`.
+        /// `triangle_test`, left in registers: per lane `t`, the two edge functions of
+        /// vertices 1 and 2, `det`, the lanes that hit in `[tnear, tmax]` (all ones) and the
+        /// lanes with a zero edge function (to be redone by the scalar test, which falls back
+        /// to `f64`). Padding lanes (all corners zero) never hit: their `det` is zero.
         #[inline(always)]
-        pub fn packet(&self, p: &TriPacket, tmax: f32) -> PacketHits {
+        fn raw(&self, p: &TriPacket, tmax: f32) -> RawHits {
             let [kx, ky, kz] = self.k;
             // SAFETY: SSE is part of the x86-64 baseline. Every load reads one `[f32; 4]` row
-            // of a 16-byte aligned packet; the unaligned stores write 4-float local arrays.
+            // of a 16-byte aligned packet.
             unsafe {
                 let rel = |j: usize, a: usize| {
                     _mm_sub_ps(_mm_load_ps(p.v[3 * j + a].as_ptr()), self.org[a])
@@ -762,21 +758,124 @@ mod sse {
                     _mm_or_ps(any_zero, _mm_and_ps(neg, pos)),
                     _mm_and_ps(in_range, _mm_cmpneq_ps(det, zero)),
                 );
+                RawHits {
+                    t,
+                    v,
+                    w,
+                    det,
+                    ok,
+                    any_zero,
+                }
+            }
+        }
+
+        /// The watertight test of four triangles (see [`SseRay::raw`]) as lane masks and
+        /// per-lane arrays.
+        #[inline(always)]
+        pub fn packet(&self, p: &TriPacket, tmax: f32) -> PacketHits {
+            let h = self.raw(p, tmax);
+            // SAFETY: SSE is part of the x86-64 baseline; the unaligned stores write 4-float
+            // local arrays.
+            unsafe {
                 let mut out = PacketHits {
-                    hit: _mm_movemask_ps(ok) as u32,
-                    redo: _mm_movemask_ps(any_zero) as u32,
+                    hit: _mm_movemask_ps(h.ok) as u32,
+                    redo: _mm_movemask_ps(h.any_zero) as u32,
                     t: [0.0; 4],
                     v: [0.0; 4],
                     w: [0.0; 4],
                     det: [0.0; 4],
                 };
-                _mm_storeu_ps(out.t.as_mut_ptr(), t);
-                _mm_storeu_ps(out.v.as_mut_ptr(), v);
-                _mm_storeu_ps(out.w.as_mut_ptr(), w);
-                _mm_storeu_ps(out.det.as_mut_ptr(), det);
+                _mm_storeu_ps(out.t.as_mut_ptr(), h.t);
+                _mm_storeu_ps(out.v.as_mut_ptr(), h.v);
+                _mm_storeu_ps(out.w.as_mut_ptr(), h.w);
+                _mm_storeu_ps(out.det.as_mut_ptr(), h.det);
                 out
             }
         }
+
+        /// The nearest hit of the packet's first `real` lanes in `[tnear, tmax]` without a
+        /// branch per lane: the smallest `t` of the hit lanes by two shuffled minima, the
+        /// lowest id among the lanes that share it. `Err(())` when a real lane has a zero edge
+        /// function (the caller redoes the packet lane by lane).
+        #[inline(always)]
+        pub fn nearest(
+            &self,
+            p: &TriPacket,
+            tmax: f32,
+            real: u32,
+        ) -> Result<Option<(f32, f32, f32, u32)>, ()> {
+            let h = self.raw(p, tmax);
+            // SAFETY: SSE is part of the x86-64 baseline; the unaligned stores write 4-float
+            // local arrays.
+            unsafe {
+                if _mm_movemask_ps(h.any_zero) as u32 & real != 0 {
+                    return Err(());
+                }
+                let hit = _mm_movemask_ps(h.ok) as u32 & real;
+                if hit == 0 {
+                    return Ok(None);
+                }
+                // Missed lanes read +inf; hit lanes hold a finite t (≤ tmax).
+                let inf = _mm_set1_ps(f32::INFINITY);
+                let tm = _mm_or_ps(_mm_and_ps(h.ok, h.t), _mm_andnot_ps(h.ok, inf));
+                let m1 = _mm_min_ps(tm, _mm_shuffle_ps::<0b10_11_00_01>(tm, tm));
+                let m2 = _mm_min_ps(m1, _mm_shuffle_ps::<0b01_00_11_10>(m1, m1));
+                let ties = _mm_movemask_ps(_mm_cmpeq_ps(tm, m2)) as u32 & hit;
+                let mut lane = ties.trailing_zeros() as usize;
+                let mut rest = ties & (ties - 1);
+                while rest != 0 {
+                    let l = rest.trailing_zeros() as usize;
+                    rest &= rest - 1;
+                    if p.id[l] < p.id[lane] {
+                        lane = l;
+                    }
+                }
+                // The lane's own `t` (the minimum's bits may be the other zero's).
+                let mut t = [0.0f32; 4];
+                let mut v = [0.0f32; 4];
+                let mut w = [0.0f32; 4];
+                let mut det = [0.0f32; 4];
+                _mm_storeu_ps(t.as_mut_ptr(), h.t);
+                _mm_storeu_ps(v.as_mut_ptr(), h.v);
+                _mm_storeu_ps(w.as_mut_ptr(), h.w);
+                _mm_storeu_ps(det.as_mut_ptr(), h.det);
+                let inv_det = 1.0 / det[lane];
+                Ok(Some((
+                    t[lane],
+                    v[lane] * inv_det,
+                    w[lane] * inv_det,
+                    p.id[lane],
+                )))
+            }
+        }
+
+        /// True when a real lane of the packet hits in `[tnear, tmax]`; `None` when none
+        /// does but a real lane has a zero edge function (to be redone lane by lane).
+        #[inline(always)]
+        pub fn any(&self, p: &TriPacket, tmax: f32, real: u32) -> Option<bool> {
+            let h = self.raw(p, tmax);
+            // SAFETY: SSE is part of the x86-64 baseline; only masks are read.
+            unsafe {
+                if _mm_movemask_ps(h.ok) as u32 & real != 0 {
+                    return Some(true);
+                }
+                if _mm_movemask_ps(h.any_zero) as u32 & real != 0 {
+                    return None;
+                }
+            }
+            Some(false)
+        }
+    }
+
+    /// What [`SseRay::raw`] leaves in registers.
+    #[derive(Clone, Copy)]
+    struct RawHits {
+        t: __m128,
+        v: __m128,
+        w: __m128,
+        det: __m128,
+        ok: __m128,
+        any_zero: __m128,
     }
 }
 
@@ -832,6 +931,49 @@ trait PacketTest {
             }
         }
     }
+
+    /// Make the nearest hit of packet `p` up to `best.t` the best hit when it beats it
+    /// (`better`, or the first hit when `found` is unset): the same answer as offering every
+    /// hit of [`PacketTest::packet`] in lane order, without a branch per lane on SSE.
+    #[inline(always)]
+    fn closest_packet(&self, r: &PreRay, p: &TriPacket, best: &mut Best, found: &mut bool) {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(s) = self.sse() {
+            match s.nearest(p, best.t, (1u32 << p.count) - 1) {
+                Ok(None) => return,
+                Ok(Some((t, u, v, prim))) => {
+                    if !*found || better(t, prim, best.t, best.prim) {
+                        *best = Best { t, prim, u, v };
+                        *found = true;
+                    }
+                    return;
+                }
+                // A zero edge function: lane by lane below (rare).
+                Err(()) => {}
+            }
+        }
+        self.packet(r, p, best.t, |t, u, v, prim| {
+            if !*found || better(t, prim, best.t, best.prim) {
+                *best = Best { t, prim, u, v };
+                *found = true;
+            }
+        });
+    }
+
+    /// True when a triangle of packet `p` is hit in `[tnear, tmax]` (what
+    /// [`PacketTest::packet`] would report at least once).
+    #[inline(always)]
+    fn any_packet(&self, r: &PreRay, p: &TriPacket, tmax: f32) -> bool {
+        #[cfg(target_arch = "x86_64")]
+        if let Some(s) = self.sse() {
+            if let Some(hit) = s.any(p, tmax, (1u32 << p.count) - 1) {
+                return hit;
+            }
+        }
+        let mut hit = false;
+        self.packet(r, p, tmax, |_, _, _, _| hit = true);
+        hit
+    }
 }
 
 /// The per-ray node tests of one traversal: a `W`-wide node test plus the (4-wide) triangle
@@ -886,13 +1028,8 @@ impl<P: PacketTest, const STATS: bool> LeafVisit<f32> for ClosestTris<'_, P, STA
             if STATS {
                 stats.tri_tests += p.count as u64;
             }
-            let (best, found) = (&mut self.best, &mut self.found);
-            self.lanes.packet(self.r, p, best.t, |t, u, v, prim| {
-                if !*found || better(t, prim, best.t, best.prim) {
-                    *best = Best { t, prim, u, v };
-                    *found = true;
-                }
-            });
+            self.lanes
+                .closest_packet(self.r, p, &mut self.best, &mut self.found);
             if p.last != 0 {
                 break;
             }
@@ -919,10 +1056,7 @@ impl<P: PacketTest, const STATS: bool> LeafVisit<bool> for OccludedTris<'_, P, S
             if STATS {
                 stats.tri_tests += p.count as u64;
             }
-            let mut hit = false;
-            self.lanes
-                .packet(self.r, p, self.r.tfar, |_, _, _, _| hit = true);
-            if hit {
+            if self.lanes.any_packet(self.r, p, self.r.tfar) {
                 return true;
             }
             if p.last != 0 {
