@@ -217,33 +217,24 @@ fn build_with(
     if n > MAX_PRIMS {
         return Err(BinnedSahError::TooManyPrimitives { count: n });
     }
-    if let Some(index) = aabbs
-        .par_iter()
-        .position_first(|b| !(b.is_finite() && b.is_valid()))
-    {
-        return Err(BinnedSahError::InvalidBox { index });
-    }
-
     // Every element of these is written before it is read (the nodes a build uses, every
     // primitive's slot, every tag), so reused buffers keep their old contents.
     let s = scratch;
-    if s.src.capacity() < n {
-        s.src = Vec::with_capacity(n);
-        crate::hugepage::advise(&s.src);
+    crate::buffers::resized_par(&mut s.src, n, PrimRef::default());
+    // One pass writes the references, checks every box and takes the root's bounds (those of
+    // `ordered_bounds`: the same chunks, folded in the same order).
+    let (bounds, cbounds, valid) = prim_refs(aabbs, &mut s.src);
+    if !valid {
+        let index = aabbs
+            .iter()
+            .position(|b| !(b.is_finite() && b.is_valid()))
+            .unwrap_or_default();
+        return Err(BinnedSahError::InvalidBox { index });
     }
-    s.src.clear();
-    s.src.par_extend(
-        aabbs
-            .par_iter()
-            .enumerate()
-            .map(|(i, b)| PrimRef::new(b, i as u32)),
-    );
     crate::buffers::resized(&mut s.dst, n, PrimRef::default());
     crate::buffers::resized(&mut s.nodes, 2 * n - 1, Node::default());
     crate::buffers::resized(&mut s.prim_indices, n, 0u32);
     crate::buffers::resized(&mut s.tags, n, [0u8; 4]);
-
-    let (bounds, cbounds) = ordered_bounds(&s.src, true);
     let ctx = Ctx {
         src: &mut s.src,
         dst: &mut s.dst,
@@ -740,6 +731,36 @@ fn ordered_bounds(refs: &[PrimRef], parallel: bool) -> (Box3, CentroidBox) {
         .fold((Box3::EMPTY, CentroidBox::EMPTY), |(b, c), (pb, pc)| {
             (b.union(pb), c.union(pc))
         })
+}
+
+/// The reference of every box into `refs` (as long as `aabbs`), with what
+/// [`ordered_bounds`]`(refs, true)` would return and whether every box is finite and valid.
+fn prim_refs(aabbs: &[Aabb], refs: &mut [PrimRef]) -> (Box3, CentroidBox, bool) {
+    let chunk = |base: usize, bs: &[Aabb], rs: &mut [PrimRef]| {
+        let mut b = Box3::EMPTY;
+        let mut c = CentroidBox::EMPTY;
+        let mut ok = true;
+        for (i, (a, r)) in bs.iter().zip(rs.iter_mut()).enumerate() {
+            ok &= a.is_finite() && a.is_valid();
+            *r = PrimRef::new(a, (base + i) as u32);
+            b.grow_ref(r);
+            c.grow(r.centroid());
+        }
+        (b, c, ok)
+    };
+    if refs.len() < PAR_NODE_MIN {
+        return chunk(0, aabbs, refs);
+    }
+    let parts: Vec<(Box3, CentroidBox, bool)> = aabbs
+        .par_chunks(CHUNK)
+        .zip(refs.par_chunks_mut(CHUNK))
+        .enumerate()
+        .map(|(k, (bs, rs))| chunk(k * CHUNK, bs, rs))
+        .collect();
+    parts.iter().fold(
+        (Box3::EMPTY, CentroidBox::EMPTY, true),
+        |(b, c, ok), (pb, pc, pok)| (b.union(pb), c.union(pc), ok && *pok),
+    )
 }
 
 /// The slices one subtree owns: its primitive range in both ping-pong buffers (current data
