@@ -489,13 +489,76 @@ impl BinMap {
 const BIN_CAP: usize = MAX_BINS;
 const BIN_MASK: usize = BIN_CAP - 1;
 
+/// One bin: its box and its primitive count in eight lanes, so that one 8-lane `min` against
+/// a primitive's [`BinBox::of`] grows the box and one integer add counts it:
+/// ```text
+///   lo:  min.x  min.y  min.z  count (the lane's bits; min with the primitive's +inf keeps it)
+///   nhi: -max.x -max.y -max.z +inf
+/// ```
+/// `min(−a, −b) = −max(a, b)` exactly, with the same operand taken on ties (the second), so
+/// the box is bit for bit the one `min`/`max` would grow.
+#[derive(Clone, Copy, Debug)]
+#[repr(C, align(32))]
+struct BinBox {
+    lo: Vec4,
+    nhi: Vec4,
+}
+
+impl BinBox {
+    /// An empty bin.
+    const EMPTY: BinBox = BinBox {
+        lo: Vec4::new(f32::INFINITY, f32::INFINITY, f32::INFINITY, 0.0),
+        nhi: Vec4::splat(f32::INFINITY),
+    };
+
+    /// Primitive `r` as a one-primitive bin whose count lane is +inf (so a `min` keeps the
+    /// bin's count).
+    #[inline(always)]
+    fn of(r: &PrimRef) -> BinBox {
+        let (lo, hi) = r.simd();
+        BinBox {
+            lo: lo.extend(f32::INFINITY),
+            nhi: (-hi).extend(f32::INFINITY),
+        }
+    }
+
+    /// Grow by `o` (`o` second in every `min`), the count lane left as it is.
+    #[inline(always)]
+    fn grow(&mut self, o: &BinBox) {
+        let count = self.lo.w;
+        self.lo = self.lo.min(o.lo);
+        self.nhi = self.nhi.min(o.nhi);
+        self.lo.w = count;
+    }
+
+    /// The primitives counted in the bin.
+    #[inline(always)]
+    fn count(&self) -> u32 {
+        self.lo.w.to_bits()
+    }
+
+    /// Add `n` to the count.
+    #[inline(always)]
+    fn add_count(&mut self, n: u32) {
+        self.lo.w = f32::from_bits(self.lo.w.to_bits() + n);
+    }
+
+    /// The box.
+    #[inline(always)]
+    fn box3(&self) -> Box3 {
+        Box3 {
+            min: Vec3A::from_vec4(self.lo),
+            max: -Vec3A::from_vec4(self.nhi),
+        }
+    }
+}
+
 /// The bins of one node, all three axes, with the sweep's scratch space. Between nodes every
-/// bin is empty (box [`Box3::EMPTY`], count 0): [`Bins::clear_used`] restores that by visiting
-/// only the bins a node used (bit `k` of `used[axis]`).
+/// bin is empty ([`BinBox::EMPTY`]): [`Bins::clear_used`] restores that by visiting only the
+/// bins a node used (bit `k` of `used[axis]`).
 #[derive(Clone, Debug)]
 struct Bins {
-    counts: [[u32; BIN_CAP]; 3],
-    bounds: [[Box3; BIN_CAP]; 3],
+    bins: [[BinBox; BIN_CAP]; 3],
     used: [u64; 3],
     /// Sweep scratch: the areas and counts of the suffixes of one axis's non-empty bins.
     suffix_area: [f64; BIN_CAP],
@@ -506,8 +569,7 @@ impl Bins {
     fn new(nb: usize) -> Box<Bins> {
         debug_assert!(nb <= BIN_CAP);
         Box::new(Bins {
-            counts: [[0; BIN_CAP]; 3],
-            bounds: [[Box3::EMPTY; BIN_CAP]; 3],
+            bins: [[BinBox::EMPTY; BIN_CAP]; 3],
             used: [0; 3],
             suffix_area: [0.0; BIN_CAP],
             suffix_count: [0; BIN_CAP],
@@ -528,13 +590,12 @@ impl Bins {
         }
         let mut used = [0u64; 3];
         for (r, t) in refs.iter().zip(tags.iter()) {
-            let (lo, hi) = r.simd();
+            let p = BinBox::of(r);
             for (a, u) in used.iter_mut().enumerate() {
                 let k = t[a] as usize & BIN_MASK;
-                let b = &mut self.bounds[a][k];
-                b.min = b.min.min(lo);
-                b.max = b.max.max(hi);
-                self.counts[a][k] += 1;
+                let b = &mut self.bins[a][k];
+                b.grow(&p);
+                b.add_count(1);
                 *u |= 1u64 << k;
             }
         }
@@ -547,8 +608,7 @@ impl Bins {
             let mut m = self.used[a];
             while m != 0 {
                 let k = m.trailing_zeros() as usize & BIN_MASK;
-                self.counts[a][k] = 0;
-                self.bounds[a][k] = Box3::EMPTY;
+                self.bins[a][k] = BinBox::EMPTY;
                 m &= m - 1;
             }
         }
@@ -562,8 +622,10 @@ impl Bins {
             let mut m = o.used[a];
             while m != 0 {
                 let k = m.trailing_zeros() as usize & BIN_MASK;
-                self.bounds[a][k] = self.bounds[a][k].union(&o.bounds[a][k]);
-                self.counts[a][k] += o.counts[a][k];
+                let ob = &o.bins[a][k];
+                let b = &mut self.bins[a][k];
+                b.grow(ob);
+                b.add_count(ob.count());
                 m &= m - 1;
             }
         }
@@ -571,9 +633,9 @@ impl Bins {
 
     /// Primitives in bins below `split` on `axis`.
     fn count_below(&self, axis: usize, split: usize) -> usize {
-        self.counts[axis][..split.min(BIN_CAP)]
+        self.bins[axis][..split.min(BIN_CAP)]
             .iter()
-            .map(|&c| c as usize)
+            .map(|b| b.count() as usize)
             .sum()
     }
 
@@ -590,33 +652,32 @@ impl Bins {
                 continue;
             }
             let used = self.used[axis];
-            let bounds = &self.bounds[axis];
-            let counts = &self.counts[axis];
+            let bins = &self.bins[axis];
             // suffix_*[k] describe the non-empty bins from k on; the lowest non-empty bin
             // has no split before it.
             let first = used.trailing_zeros() as usize & BIN_MASK;
-            let mut acc = Box3::EMPTY;
+            let mut acc = BinBox::EMPTY;
             let mut cnt = 0u32;
             let mut m = used & !(1u64 << first);
             while m != 0 {
                 // Highest first.
                 let k = (63 - m.leading_zeros()) as usize & BIN_MASK;
-                acc = acc.union(&bounds[k]);
-                cnt += counts[k];
-                self.suffix_area[k] = acc.area();
+                acc.grow(&bins[k]);
+                cnt += bins[k].count();
+                self.suffix_area[k] = acc.box3().area();
                 self.suffix_count[k] = cnt;
                 m &= !(1u64 << k);
             }
-            let mut left = Box3::EMPTY;
+            let mut left = BinBox::EMPTY;
             let mut n_left = 0u32;
             let mut prev = first;
             let mut m = used & !(1u64 << prev);
             while m != 0 {
                 let k = m.trailing_zeros() as usize & BIN_MASK;
-                left = left.union(&bounds[prev]);
-                n_left += counts[prev];
-                let cost =
-                    left.area() * n_left as f64 + self.suffix_area[k] * self.suffix_count[k] as f64;
+                left.grow(&bins[prev]);
+                n_left += bins[prev].count();
+                let cost = left.box3().area() * n_left as f64
+                    + self.suffix_area[k] * self.suffix_count[k] as f64;
                 if best.is_none_or(|(c, _, _)| cost < c) {
                     best = Some((cost, axis, prev + 1));
                 }
@@ -625,17 +686,17 @@ impl Bins {
             }
         }
         let (_, axis, split) = best?;
-        let (mut left, mut right) = (Box3::EMPTY, Box3::EMPTY);
+        let (mut left, mut right) = (BinBox::EMPTY, BinBox::EMPTY);
         let mut n_left = 0usize;
         let mut m = self.used[axis];
         while m != 0 {
             let k = m.trailing_zeros() as usize & BIN_MASK;
-            let b = &self.bounds[axis][k];
+            let b = &self.bins[axis][k];
             if k < split {
-                left = left.union(b);
-                n_left += self.counts[axis][k] as usize;
+                left.grow(b);
+                n_left += b.count() as usize;
             } else {
-                right = right.union(b);
+                right.grow(b);
             }
             m &= m - 1;
         }
@@ -643,8 +704,8 @@ impl Bins {
             axis,
             split,
             n_left,
-            left,
-            right,
+            left: left.box3(),
+            right: right.box3(),
         })
     }
 }
@@ -1146,7 +1207,7 @@ fn build_serial(ctx: Ctx<'_>, root: Task, nb: usize, rule: Option<LeafRule>) -> 
 mod simd {
     use core::arch::x86_64::*;
 
-    use super::{BinMap, Bins, Box3, CentroidBox, PrimRef, BIN_MASK};
+    use super::{BinBox, BinMap, Bins, Box3, CentroidBox, PrimRef, BIN_CAP, BIN_MASK};
 
     /// [`Box3::area`]: `2 · ((dx·dy + dy·dz) + dz·dx)` with `d = max(hi − lo, 0)` in `f64`,
     /// the operations of `Aabb::area_f64` in the same order (SSE2, part of x86-64).
@@ -1260,56 +1321,66 @@ mod simd {
             prev = w;
             *t = w.to_le_bytes();
         }
-        if changes * RUNS_FROM > refs.len() {
-            // Short runs: one primitive at a time (a branch per run would mispredict).
-            let mut used = [0u64; 3];
-            for (r, t) in refs.iter().zip(tags.iter()) {
-                let w = u32::from_le_bytes(*t);
-                let (lo, hi) = r.simd();
-                for (a, u) in used.iter_mut().enumerate() {
-                    let k = (w >> (8 * a)) as usize & BIN_MASK;
-                    let bx = &mut bins.bounds[a][k];
-                    bx.min = bx.min.min(lo);
-                    bx.max = bx.max.max(hi);
-                    bins.counts[a][k] += 1;
-                    *u |= 1u64 << k;
-                }
+        // A bin is eight lanes (`BinBox`): one `min` grows its box, one add counts.
+        let base = bins.bins.as_mut_ptr().cast::<BinBox>();
+        let one = _mm256_setr_epi32(0, 0, 0, 1, 0, 0, 0, 0);
+        let inf = _mm_set1_ps(f32::INFINITY);
+        let sign = _mm_set1_ps(-0.0);
+        // `BinBox::of(r)`: (lo, +inf, −hi, +inf).
+        let of = |r: &PrimRef| -> __m256 {
+            // SAFETY: AVX2 is enabled; the loads read the two 16-byte halves of `r`.
+            unsafe {
+                let lo = _mm_blend_ps::<0b1000>(_mm_loadu_ps(&r.lo as *const _ as *const f32), inf);
+                let hi = _mm_loadu_ps(&r.hi as *const _ as *const f32);
+                let nhi = _mm_blend_ps::<0b1000>(_mm_xor_ps(hi, sign), inf);
+                _mm256_insertf128_ps::<1>(_mm256_castps128_ps256(lo), nhi)
             }
-            bins.used = used;
-            return;
-        }
-        // Runs of primitives with the same three bins (the rule in a coherent mesh, whose
-        // order the stable partitions keep) are merged in registers and added to their bins
-        // once, so consecutive primitives do not wait on each other's stores.
+        };
         let mut used = [0u64; 3];
-        let mut flush = |w: u32, lo: glam::Vec3A, hi: glam::Vec3A, run: u32| {
+        // Grow bin `(a, k)` by the eight lanes `p` (`p` second, as `BinBox::grow`) and add
+        // `n` to its count.
+        let mut add = |w: u32, p: __m256, n: __m256i| {
             for (a, u) in used.iter_mut().enumerate() {
                 let k = (w >> (8 * a)) as usize & BIN_MASK;
-                let bx = &mut bins.bounds[a][k];
-                bx.min = bx.min.min(lo);
-                bx.max = bx.max.max(hi);
-                bins.counts[a][k] += run;
+                // SAFETY: `base` is the first of the 3 · BIN_CAP contiguous `BinBox`es of
+                // `bins.bins` (32-byte aligned); `a < 3` and `k < BIN_CAP` (masked) keep the
+                // offset in range; the aligned accesses read and write that one bin whole.
+                unsafe {
+                    let at = base.add(a * BIN_CAP + k).cast::<f32>();
+                    let v = _mm256_min_ps(_mm256_load_ps(at), p);
+                    let v = _mm256_castsi256_ps(_mm256_add_epi32(_mm256_castps_si256(v), n));
+                    _mm256_store_ps(at, v);
+                }
                 *u |= 1u64 << k;
             }
         };
-        let mut pairs = refs.iter().zip(tags.iter());
-        if let Some((r, t)) = pairs.next() {
-            let mut cur = u32::from_le_bytes(*t);
-            let (mut lo, mut hi) = r.simd();
-            let mut run = 1u32;
-            for (r, t) in pairs {
-                let w = u32::from_le_bytes(*t);
-                let (l, h) = r.simd();
-                if w == cur {
-                    lo = lo.min(l);
-                    hi = hi.max(h);
-                    run += 1;
-                } else {
-                    flush(cur, lo, hi, run);
-                    (cur, lo, hi, run) = (w, l, h, 1);
-                }
+        if changes * RUNS_FROM > refs.len() {
+            // Short runs: one primitive at a time (a branch per run would mispredict).
+            for (r, t) in refs.iter().zip(tags.iter()) {
+                add(u32::from_le_bytes(*t), of(r), one);
             }
-            flush(cur, lo, hi, run);
+        } else {
+            // Runs of primitives with the same three bins (the rule in a coherent mesh, whose
+            // order the stable partitions keep) are merged in registers and added to their
+            // bins once, so consecutive primitives do not wait on each other's stores.
+            let mut pairs = refs.iter().zip(tags.iter());
+            if let Some((r, t)) = pairs.next() {
+                let mut cur = u32::from_le_bytes(*t);
+                let mut acc = of(r);
+                let mut run = 1i32;
+                for (r, t) in pairs {
+                    let w = u32::from_le_bytes(*t);
+                    let p = of(r);
+                    if w == cur {
+                        acc = _mm256_min_ps(acc, p);
+                        run += 1;
+                    } else {
+                        add(cur, acc, _mm256_setr_epi32(0, 0, 0, run, 0, 0, 0, 0));
+                        (cur, acc, run) = (w, p, 1);
+                    }
+                }
+                add(cur, acc, _mm256_setr_epi32(0, 0, 0, run, 0, 0, 0, 0));
+            }
         }
         bins.used = used;
     }
