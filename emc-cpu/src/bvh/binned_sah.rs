@@ -16,8 +16,10 @@
 //! records every primitive's three bins (`tags`) for the partition that follows, and which bins
 //! are in use (bit masks), so the split sweep visits only non-empty bins. The bins of an axis
 //! are a fixed array of [`MAX_BINS`] indexed by masked bytes, so no bin access is
-//! bounds-checked (with the binning and tagging fused in one pass: 18% fewer instructions for
-//! a San Francisco build).
+//! bounds-checked. A bin is eight lanes (its minimum and count, its negated maximum: one `min`
+//! and one integer add per axis and primitive), and where the tags come in runs of equal bins
+//! (a coherent mesh, whose order the stable partitions keep) a run is merged in registers and
+//! added once. The root's references, box check and bounds are one pass.
 //!
 //! [`build_binned_sah_leaves`] stops at the leaves an SAH rule makes (the library's quality
 //! preset): the same splits above them, nothing built below.
