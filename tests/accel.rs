@@ -514,3 +514,16 @@ fn builds_are_identical_at_any_thread_count() {
         }
     }
 }
+
+#[test]
+fn every_preset_builds_large_hard_scenes() {
+    // At 20,000 triangles the huge-coordinate scenes overflow box areas to +inf in the wide
+    // cover DP of the fast build's top (a split of zero slots once made it panic).
+    for name in builtin::HARD_NAMES {
+        let spec = format!("builtin:{name}");
+        let Ok(s) = scene::load_with(&spec, &SceneOptions::default().with_prims(20_000)) else {
+            continue;
+        };
+        check_scene(&format!("{spec} (20k)"), &s, 1000);
+    }
+}

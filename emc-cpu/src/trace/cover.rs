@@ -5,7 +5,8 @@
 //!
 //! ```text
 //!   dist(j)  = min over k in 1..j of  cl[k − 1] + cr[j − k − 1]      j = 2..=W
-//!   split(j) = the smallest k reaching it               (lane j − 1; lane 0 unused: +inf, 0)
+//!   split(j) = the smallest k reaching it, 1 when none is below +inf
+//!                                                       (lane j − 1; lane 0 unused: +inf, 0)
 //! ```
 
 /// `(dist, split)` of the DP step for children cost rows `cl`, `cr` (see the module docs).
@@ -31,7 +32,11 @@ pub fn dist<const W: usize>(cl: &[f32; W], cr: &[f32; W]) -> ([f32; W], [u8; W])
 #[inline(always)]
 pub fn dist_scalar<const W: usize>(cl: &[f32; W], cr: &[f32; W]) -> ([f32; W], [u8; W]) {
     let mut dist = [f32::INFINITY; W];
-    let mut split = [0u8; W];
+    // k = 1 until a candidate is strictly lower: a valid split even when every candidate is
+    // +inf or NaN (boxes of overflowing areas), never the 0 slots that would leave a side
+    // empty.
+    let mut split = [1u8; W];
+    split[0] = 0;
     for j in 2..=W {
         for k in 1..j {
             let c = cl[k - 1] + cr[j - k - 1];
@@ -63,7 +68,8 @@ mod avx2 {
             let r = _mm256_loadu_ps(cr.as_ptr());
             let lane = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
             let mut dist = inf;
-            let mut split = _mm256_setzero_si256();
+            // k = 1 until a candidate is strictly lower (as the loops).
+            let mut split = _mm256_setr_epi32(0, 1, 1, 1, 1, 1, 1, 1);
             for k in 1..8i32 {
                 let kk = _mm256_set1_epi32(k);
                 // Lane d takes cr[d − k]: indices wrap for d < k and are masked to +inf.
@@ -103,8 +109,13 @@ mod tests {
             let mut row = || {
                 let mut r = [0.0f32; 8];
                 let mut v = (next() % 64) as f32 * 0.25;
+                let all_inf = next() % 17 == 0;
                 for e in r.iter_mut() {
-                    *e = if next() % 11 == 0 { f32::INFINITY } else { v };
+                    *e = if all_inf || next() % 11 == 0 {
+                        f32::INFINITY
+                    } else {
+                        v
+                    };
                     v += [0.0, 0.5, 1.0, 0.125][(next() % 4) as usize];
                 }
                 r
