@@ -516,6 +516,52 @@ fn builds_are_identical_at_any_thread_count() {
 }
 
 #[test]
+fn both_copies_of_the_fast_block_builders_build_the_same_tree() {
+    use emc_cpu::trace::wide_lbvh::{force_baseline_tree, tree_isa};
+    let (isa, why) = tree_isa();
+    if isa == "baseline" {
+        eprintln!("skipped: the fast build has no second copy to compare on this CPU ({why})");
+        return;
+    }
+    let mut meshes: Vec<(String, Mesh)> = Vec::new();
+    for name in builtin::NAMES.iter().chain(builtin::HARD_NAMES.iter()) {
+        let spec = format!("builtin:{name}");
+        if let Ok(s) = scene::load_with(&spec, &SceneOptions::default().with_prims(20_000)) {
+            meshes.push((spec, s));
+        }
+    }
+    assert!(meshes.len() >= builtin::NAMES.len() + builtin::HARD_NAMES.len() - 1);
+    let two = rayon::ThreadPoolBuilder::new()
+        .num_threads(2)
+        .build()
+        .unwrap();
+    for (spec, s) in &meshes {
+        for width in [8, 4] {
+            for threads in [1, 2] {
+                let run = || build(s, Preset::Fast, width);
+                let (v3, base) = if threads == 1 {
+                    let v3 = run();
+                    force_baseline_tree(true);
+                    let base = run();
+                    force_baseline_tree(false);
+                    (v3, base)
+                } else {
+                    let v3 = two.install(run);
+                    force_baseline_tree(true);
+                    let base = two.install(run);
+                    force_baseline_tree(false);
+                    (v3, base)
+                };
+                assert!(
+                    same_tree(&v3, &base),
+                    "{spec} width {width}, {threads} thread(s): the {isa} copy built another tree"
+                );
+            }
+        }
+    }
+}
+
+#[test]
 fn every_preset_builds_large_hard_scenes() {
     // At 20,000 triangles the huge-coordinate scenes overflow box areas to +inf in the wide
     // cover DP of the fast build's top (a split of zero slots once made it panic).
