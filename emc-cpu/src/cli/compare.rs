@@ -735,8 +735,9 @@ fn print_targets(rows: &[Row], ntris: usize) {
     ];
     let cold = [ph.cold.aabb, ph.cold.encode, ph.cold.sort, ph.cold.tree];
     let warm = [ph.warm.aabb, ph.warm.encode, ph.warm.sort, ph.warm.tree];
+    let (isa, why) = crate::trace::wide_lbvh::tree_isa();
     println!(
-        "{} per phase, ns per triangle (medians; the rest of the build, copies of the mesh and allocation, is the difference to the total):",
+        "{} per phase, ns per triangle (medians; the rest of the build, copies of the mesh and allocation, is the difference to the total; block builders: {isa}, {why}):",
         r.config.name()
     );
     println!(
