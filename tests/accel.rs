@@ -392,6 +392,27 @@ fn bad_meshes_and_options_are_refused() {
             Accel::build(&inf, &[[0, 1, 2]], &o),
             Err(TraceError::NonFinite(0))
         ));
+        // Every non-finite kind, on any axis, in the second triangle; one not used is fine.
+        for bad in [f32::NAN, f32::NEG_INFINITY, -f32::NAN] {
+            for axis in 0..3 {
+                let mut p = Vec3::new(0.5, 0.5, 0.5);
+                p[axis] = bad;
+                let m = [Vec3::ZERO, Vec3::X, Vec3::Y, p, Vec3::splat(f32::MAX)];
+                assert!(matches!(
+                    Accel::build(&m, &[[0, 1, 2], [0, 3, 1]], &o),
+                    Err(TraceError::NonFinite(1))
+                ));
+                assert!(Accel::build(&m, &[[0, 1, 2], [0, 4, 1]], &o).is_ok());
+            }
+        }
+        assert!(matches!(
+            Accel::build(&v, &[[0, 1, 2], [u32::MAX, 1, 2]], &o),
+            Err(TraceError::BadIndex {
+                tri: 1,
+                index: u32::MAX,
+                vertices: 3
+            })
+        ));
         let w = o.with_width(6);
         assert!(matches!(
             Accel::build(&v, &[[0, 1, 2]], &w),

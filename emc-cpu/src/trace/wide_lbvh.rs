@@ -1031,16 +1031,23 @@ pub(crate) fn mesh_boxes(
 }
 
 /// Every index names a vertex and every vertex a triangle uses is finite (two branch-free
-/// passes; the slow search for the culprit runs only when one of them fails).
+/// passes; the slow search for the culprit runs only when one of them fails). Both folds are
+/// written so that the x86-64 baseline vectorises them (a compare and an or per index; an and,
+/// an add and an or per coordinate): a `u32` maximum has no SSE2 instruction, and
+/// its emulation made the check cost as much as the boxes (stanford-dragon, fast preset: 7.1 →
+/// 3.x ns per triangle for the whole boxes phase).
 fn check_indices(vertices: &[Vec3], indices: &[[u32; 3]]) -> Result<(), TraceError> {
     use rayon::prelude::*;
     let nv = vertices.len();
-    let max = indices
-        .par_chunks(1 << 16)
-        .map(|c| c.iter().fold(0u32, |m, t| m.max(t[0]).max(t[1]).max(t[2])))
-        .max()
-        .unwrap_or(0);
-    if max as usize >= nv {
+    // Indices at or past `nv` (`nv` ≥ 2^32 admits every index).
+    let limit = u32::try_from(nv).unwrap_or(u32::MAX);
+    let all_below = nv > u32::MAX as usize;
+    let over = indices
+        .as_flattened()
+        .par_chunks(3 << 16)
+        .map(|c| c.iter().fold(0u32, |m, &x| m | (x >= limit) as u32))
+        .reduce(|| 0, |a, b| a | b);
+    if over != 0 && !all_below {
         let (tri, index) = indices
             .iter()
             .enumerate()
@@ -1052,20 +1059,18 @@ fn check_indices(vertices: &[Vec3], indices: &[[u32; 3]]) -> Result<(), TraceErr
             vertices: nv,
         });
     }
-    // A coordinate is not finite exactly when its exponent field is all ones.
+    // A coordinate is not finite exactly when its exponent field is all ones, that is when
+    // adding one to the field carries into the sign bit.
     const EXP: u32 = 0x7f80_0000;
-    let exp = vertices
+    let carry = |x: f32| (x.to_bits() & EXP) + (1 << 23);
+    let any = vertices
         .par_chunks(1 << 16)
         .map(|c| {
-            c.iter().fold(0u32, |m, v| {
-                m.max(v.x.to_bits() & EXP)
-                    .max(v.y.to_bits() & EXP)
-                    .max(v.z.to_bits() & EXP)
-            })
+            c.iter()
+                .fold(0u32, |m, v| m | carry(v.x) | carry(v.y) | carry(v.z))
         })
-        .max()
-        .unwrap_or(0);
-    if exp == EXP {
+        .reduce(|| 0, |a, b| a | b);
+    if any & (1 << 31) != 0 {
         if let Some(tri) = indices
             .iter()
             .position(|t| t.iter().any(|&i| !vertices[i as usize].is_finite()))
