@@ -216,7 +216,7 @@ pub fn restructure_quiet(
 /// construction (and by their tests): the whole-tree validation runs in debug builds only
 /// (5% of a San Francisco balanced build), and a leaf of one primitive keeps its box, which
 /// those builders copy from the primitive's (the refit of every leaf reads the boxes in
-/// random order: a quarter of a one-thread bathroom balanced build).
+/// random order: 3-5% of a one-thread balanced build).
 pub(crate) fn restructure_built(
     bvh: &mut Bvh,
     aabbs: &[Aabb],

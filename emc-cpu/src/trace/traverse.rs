@@ -342,8 +342,9 @@ mod avx512 {
         }
 
         /// The eight slab tests of `node`, lane for lane the same operations as `slab_test`:
-        /// `(p - o) · inv` on the near plane, `(p - o) · inv_far` on the far one, then `max(tn, t0)` / `min(tf, t1)` in that operand
-        /// order (`vmaxps`/`vminps` discard NaN as `max_sse`/`min_sse` do).
+        /// `(p - o) · inv` on the near plane, `(p - o) · inv_far` on the far one, then
+        /// `max(tn, t0)` / `min(tf, t1)` in that operand order (`vmaxps`/`vminps` discard NaN
+        /// as `max_sse`/`min_sse` do).
         #[inline(always)]
         pub fn test(&self, node: &WideNode8, tfar: f32) -> LaneHitsN<WIDTH8> {
             // SAFETY: only reached with AVX-512 F/VL/DQ enabled and detected. `planes` is six
@@ -659,8 +660,8 @@ mod sse {
         }
 
         /// The four slab tests of `node` in one go, operation for operation the same as
-        /// `slab_test` (sub, mul by `inv` or `inv_far`, then `max(tn, t0)` / `min(tf, t1)` whose operand
-        /// order discards NaN exactly as `max_sse`/`min_sse` do).
+        /// `slab_test` (sub, mul by `inv` or `inv_far`, then `max(tn, t0)` / `min(tf, t1)`
+        /// whose operand order discards NaN exactly as `max_sse`/`min_sse` do).
         #[inline(always)]
         pub fn test(&self, node: &WideNode, tfar: f32) -> LaneHits {
             self.slabs(|row| &node.planes[row], tfar)
@@ -941,22 +942,14 @@ trait PacketTest {
         if let Some(s) = self.sse() {
             match s.nearest(p, best.t, (1u32 << p.count) - 1) {
                 Ok(None) => return,
-                Ok(Some((t, u, v, prim))) => {
-                    if !*found || better(t, prim, best.t, best.prim) {
-                        *best = Best { t, prim, u, v };
-                        *found = true;
-                    }
-                    return;
-                }
+                Ok(Some((t, u, v, prim))) => return offer(best, found, t, u, v, prim),
                 // A zero edge function: lane by lane below (rare).
                 Err(()) => {}
             }
         }
-        self.packet(r, p, best.t, |t, u, v, prim| {
-            if !*found || better(t, prim, best.t, best.prim) {
-                *best = Best { t, prim, u, v };
-                *found = true;
-            }
+        let tmax = best.t;
+        self.packet(r, p, tmax, |t, u, v, prim| {
+            offer(best, found, t, u, v, prim)
         });
     }
 
@@ -1557,6 +1550,15 @@ struct Best {
     v: f32,
 }
 
+/// Make `(t, u, v, prim)` the best hit when it beats it (`better`), or when none was `found`.
+#[inline(always)]
+fn offer(best: &mut Best, found: &mut bool, t: f32, u: f32, v: f32, prim: u32) {
+    if !*found || better(t, prim, best.t, best.prim) {
+        *best = Best { t, prim, u, v };
+        *found = true;
+    }
+}
+
 /// The closest-hit loop over one triangle tree (`nodes`: the tree of width `W` in `bvh`).
 #[inline(always)]
 fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
@@ -1854,11 +1856,9 @@ fn brute_force_in<L: Lanes<WIDTH>>(r: &PreRay, packets: &[TriPacket], lanes: &L)
     };
     let mut found = false;
     for p in packets {
-        lanes.packet(r, p, best.t, |t, u, v, prim| {
-            if !found || better(t, prim, best.t, best.prim) {
-                best = Best { t, prim, u, v };
-                found = true;
-            }
+        let tmax = best.t;
+        lanes.packet(r, p, tmax, |t, u, v, prim| {
+            offer(&mut best, &mut found, t, u, v, prim)
         });
     }
     found.then_some(Hit::triangle(best.t, best.prim, best.u, best.v))

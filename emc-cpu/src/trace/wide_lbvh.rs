@@ -427,6 +427,11 @@ fn v3_available() -> bool {
     false
 }
 
+/// Whether builds run the x86-64-v3 copy of the per-block builders now.
+fn use_v3() -> bool {
+    !BASELINE_ONLY.load(std::sync::atomic::Ordering::Relaxed) && v3_available()
+}
+
 /// Which copy of the fast build's per-block builders this CPU runs, and why.
 pub fn tree_isa() -> (&'static str, &'static str) {
     if BASELINE_ONLY.load(std::sync::atomic::Ordering::Relaxed) {
@@ -452,8 +457,8 @@ fn build_blocks<K: RadixKey, const W: usize>(
     sink: &mut Vec<Fixed>,
 ) {
     #[cfg(target_arch = "x86_64")]
-    if !BASELINE_ONLY.load(std::sync::atomic::Ordering::Relaxed) && v3_available() {
-        // SAFETY: the CPU has every feature `blocks_v3` is compiled for (checked above).
+    if use_v3() {
+        // SAFETY: the CPU has every feature `blocks_v3` is compiled for (`use_v3` checked).
         #[allow(unsafe_code)]
         unsafe {
             blocks_v3(inp, ranges, out, sink)
