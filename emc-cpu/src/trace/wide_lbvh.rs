@@ -341,29 +341,36 @@ macro_rules! block_builders {
             let root = &nodes[bn as usize];
             let mut kids = [0u32; W];
             // Each child's opening priority, kept beside it so the choice reads no node.
-            let mut prio = [(0u32, 0.0f32); W];
+            let mut prio = [0u64; W];
             kids[0] = root.left;
             kids[1] = root.right;
             prio[0] = open_priority(&nodes[root.left as usize]);
             prio[1] = open_priority(&nodes[root.right as usize]);
             let mut n = 2;
             while n < W {
-                // The first of the highest priority.
+                // The first of the highest priority (selects, not branches: the keys are
+                // integers).
                 let mut best = 0;
+                let mut bk = prio[0];
+                #[allow(clippy::needless_range_loop)]
                 for i in 1..n {
-                    let (c, v) = prio[i];
-                    let (bc, bv) = prio[best];
-                    if c > bc || (c == bc && v > bv) {
-                        best = i;
-                    }
+                    let k = prio[i];
+                    best = if k > bk { i } else { best };
+                    bk = bk.max(k);
                 }
-                if prio[best].0 == 0 {
+                if bk == 0 {
                     break;
                 }
                 let k = &nodes[kids[best] as usize];
                 let (l, r) = (k.left, k.right);
-                kids.copy_within(best + 1..n, best + 2);
-                prio.copy_within(best + 1..n, best + 2);
+                // Shift the children after `best` one lane on (a loop of at most W − 2
+                // moves; `copy_within` would call `memmove` for each opening).
+                let mut i = n;
+                while i > best + 1 {
+                    kids[i] = kids[i - 1];
+                    prio[i] = prio[i - 1];
+                    i -= 1;
+                }
                 kids[best] = l;
                 kids[best + 1] = r;
                 prio[best] = open_priority(&nodes[l as usize]);
@@ -549,15 +556,29 @@ fn emit_leaf<const W: usize>(
 
 /// Which child of a wide node under construction is opened next: every inner child before
 /// any leaf, the largest area first; then a leaf of several primitives whose two halves cost
-/// least against it (positive gain only); never a single primitive. Larger is opened first.
+/// least against it (positive gain only); never a single primitive (key 0). Larger is opened
+/// first.
+///
+/// ```text
+///   key bits  63 … 34 | 33 32 | 31 … 0
+///             zero    | class | the area (class 2) or gain (class 1), f32 bits
+/// ```
+///
+/// Areas and positive gains are non-negative floats, whose bit patterns order as their values.
 #[inline(always)]
-fn open_priority(kn: &BNode) -> (u32, f32) {
-    if !kn.leaf {
-        (2, kn.area)
+fn open_priority(kn: &BNode) -> u64 {
+    let class = if !kn.leaf {
+        2
     } else if kn.count > 1 && kn.gain > 0.0 {
-        (1, kn.gain)
+        1
     } else {
-        (0, 0.0)
+        0
+    };
+    let v = if kn.leaf { kn.gain } else { kn.area };
+    if class == 0 {
+        0
+    } else {
+        (class << 32) | u64::from(v.to_bits())
     }
 }
 
