@@ -701,12 +701,9 @@ pub fn build_tree<K: RadixKey, const W: usize>(
     let mut top = Vec::with_capacity(ranges.capacity());
     let root = partition(inp, 0, n, &mut ranges, &mut top);
     let parallel = rayon::current_num_threads() > 1 && ranges.len() > 1;
-    if !parallel {
-        // Built by pushes. (The parallel phase overwrites the buffers' old elements in place
-        // instead, so they keep them until then.)
-        out.nodes.clear();
-        out.packets.clear();
-    }
+    // Built by pushes (in parallel: the first share by pushes, the rest copied after it).
+    out.nodes.clear();
+    out.packets.clear();
     if root & REF_FLAG != 0 {
         // One block: its root node is node 0, or a root with one lane holds its leaf.
         let mut one = Vec::with_capacity(1);
@@ -750,13 +747,18 @@ pub struct GroupOut<const W: usize> {
     block: BlockScratch,
 }
 
-/// Groups per thread of the parallel block phase (balance against the copy's pieces).
-const GROUPS_PER_THREAD: usize = 4;
+/// Groups per thread of the parallel block phase (the unit the workers claim).
+const GROUPS_PER_THREAD: usize = 8;
 
-/// Step 2 on the current pool: the blocks in groups of consecutive ranges (about equal
-/// primitive counts), each group into its own buffers as a task, then every group's nodes and
-/// packets copied in parallel to their places after node 0, child codes moved by the group's
-/// offsets. The result equals the serial build's, node for node.
+/// Step 2 on the current pool. The ranges are cut into groups of consecutive ranges (about
+/// equal primitive counts) that the workers claim one at a time: the calling thread from the
+/// front, building each straight into the output (after node 0, as the serial build writes
+/// them), the other threads from the back, each group into its own buffers. Where the two ends
+/// meet, every group left of it is in place; the others are then copied in parallel after it,
+/// child codes moved by the group's offsets. The result equals the serial build's, node for
+/// node. (Copying every group instead moved the whole tree twice: stanford-dragon's two-thread
+/// tree phase spent 4 of its 18.5 ms in the copy; a fixed direct share waited for the others,
+/// as the cost per primitive varies along the curve.)
 fn build_blocks_parallel<K: RadixKey, const W: usize>(
     inp: &Inputs<'_, K>,
     ranges: &[(u32, u32)],
@@ -764,8 +766,10 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
     outs: &mut Vec<GroupOut<W>>,
 ) -> Vec<Fixed> {
     use rayon::prelude::*;
+    use std::sync::Mutex;
     let n = inp.keys.len();
-    let groups = (rayon::current_num_threads() * GROUPS_PER_THREAD).min(ranges.len());
+    let threads = rayon::current_num_threads();
+    let groups = (threads * GROUPS_PER_THREAD).min(ranges.len());
     // Cut the ranges where the primitive count passes each multiple of n / groups.
     let mut cuts = Vec::with_capacity(groups + 1);
     cuts.push(0usize);
@@ -776,35 +780,75 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
         }
     }
     cuts.push(ranges.len());
-    outs.resize_with(cuts.len() - 1, GroupOut::default);
-    outs.par_iter_mut().enumerate().for_each(|(g, o)| {
-        o.nodes.clear();
-        o.packets.clear();
-        o.blocks.clear();
-        let prims = (ranges[cuts[g + 1] - 1].1 - ranges[cuts[g]].0) as usize;
-        let fresh = o.packets.capacity() == 0;
-        o.packets.reserve(prims / 2 + 1);
-        o.nodes.reserve(prims / (2 * W) + 1);
-        if fresh {
-            crate::hugepage::advise(&o.packets);
-            crate::hugepage::advise(&o.nodes);
-        }
-        let mut go = Outputs {
-            nodes: &mut o.nodes,
-            packets: &mut o.packets,
-            leaves: 0,
-            block: &mut o.block,
-        };
-        build_blocks(inp, &ranges[cuts[g]..cuts[g + 1]], &mut go, &mut o.blocks);
-        o.leaves = go.leaves;
-    });
-    // Offsets of every group's nodes (after node 0, kept for the root) and packets.
-    let (mut node_off, mut packet_off) = (
-        Vec::with_capacity(outs.len()),
-        Vec::with_capacity(outs.len()),
+    let groups = cuts.len() - 1;
+    outs.resize_with(groups, GroupOut::default);
+    // Groups not yet claimed: `front..back`.
+    let claims = Mutex::new((0usize, groups));
+    let claim_front = || {
+        let mut c = claims.lock().unwrap_or_else(|e| e.into_inner());
+        (c.0 < c.1).then(|| {
+            c.0 += 1;
+            c.0 - 1
+        })
+    };
+    let claim_back = || {
+        let mut c = claims.lock().unwrap_or_else(|e| e.into_inner());
+        (c.0 < c.1).then(|| {
+            c.1 -= 1;
+            c.1
+        })
+    };
+    let mut blocks = Vec::with_capacity(ranges.len());
+    // Node 0 is kept for the root.
+    out.nodes.push(WideNodeN::empty());
+    // Each group's buffers behind its own lock (a group is claimed once, so never contended).
+    let slots: Vec<Mutex<&mut GroupOut<W>>> = outs.iter_mut().map(Mutex::new).collect();
+    let mut direct = 0;
+    rayon::join(
+        || {
+            while let Some(g) = claim_front() {
+                build_blocks(inp, &ranges[cuts[g]..cuts[g + 1]], out, &mut blocks);
+                direct = g + 1;
+            }
+        },
+        || {
+            (1..threads.max(2)).into_par_iter().for_each(|_| {
+                while let Some(g) = claim_back() {
+                    let mut o = slots[g].lock().unwrap_or_else(|e| e.into_inner());
+                    let o = &mut **o;
+                    o.nodes.clear();
+                    o.packets.clear();
+                    o.blocks.clear();
+                    let prims = (ranges[cuts[g + 1] - 1].1 - ranges[cuts[g]].0) as usize;
+                    let fresh = o.packets.capacity() == 0;
+                    o.packets.reserve(prims / 2 + 1);
+                    o.nodes.reserve(prims / (2 * W) + 1);
+                    if fresh {
+                        crate::hugepage::advise(&o.packets);
+                        crate::hugepage::advise(&o.nodes);
+                    }
+                    let mut go = Outputs {
+                        nodes: &mut o.nodes,
+                        packets: &mut o.packets,
+                        leaves: 0,
+                        block: &mut o.block,
+                    };
+                    build_blocks(inp, &ranges[cuts[g]..cuts[g + 1]], &mut go, &mut o.blocks);
+                    o.leaves = go.leaves;
+                }
+            })
+        },
     );
-    let (mut nn, mut np) = (1usize, 0usize);
-    for o in outs.iter() {
+    drop(slots);
+    let copied = &outs[direct..];
+    // Offsets of every copied group's nodes and packets, after the direct ones'.
+    let (mut node_off, mut packet_off) = (
+        Vec::with_capacity(copied.len()),
+        Vec::with_capacity(copied.len()),
+    );
+    let (n0, p0) = (out.nodes.len(), out.packets.len());
+    let (mut nn, mut np) = (n0, p0);
+    for o in copied {
         node_off.push(nn as u32);
         packet_off.push(np as u32);
         nn += o.nodes.len();
@@ -820,30 +864,45 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
             c + no
         }
     };
-    // Each group copied into its place in parallel, over the buffers' old elements (a reused
-    // buffer is neither cleared nor filled; only a longer tail is written first): one memcpy
-    // per group for the packets, one pass shifting the child codes for the nodes.
-    crate::buffers::resized(out.nodes, nn, WideNodeN::empty());
-    crate::buffers::resized(out.packets, np, TriPacket::blank(0, true));
-    let node_slices = split_by_len(&mut out.nodes[1..], outs.iter().map(|o| o.nodes.len()));
-    let packet_slices = split_by_len(&mut out.packets[..], outs.iter().map(|o| o.packets.len()));
-    let groups: &[GroupOut<W>] = outs;
+    // Each group copied into its place in parallel, straight into the buffers' spare capacity
+    // (nothing written twice): one pass per group for the packets, one shifting the child
+    // codes for the nodes.
+    out.nodes.reserve(nn - n0);
+    out.packets.reserve(np - p0);
+    let node_slices = split_by_len(
+        &mut out.nodes.spare_capacity_mut()[..nn - n0],
+        copied.iter().map(|o| o.nodes.len()),
+    );
+    let packet_slices = split_by_len(
+        &mut out.packets.spare_capacity_mut()[..np - p0],
+        copied.iter().map(|o| o.packets.len()),
+    );
     node_slices
         .into_par_iter()
         .zip(packet_slices)
-        .zip(groups)
+        .zip(copied)
         .enumerate()
         .for_each(|(g, ((dn, dp), o))| {
-            dp.copy_from_slice(&o.packets);
+            for (d, s) in dp.iter_mut().zip(&o.packets) {
+                d.write(*s);
+            }
             for (d, s) in dn.iter_mut().zip(&o.nodes) {
-                *d = *s;
-                for c in d.child.iter_mut() {
+                let mut s = *s;
+                for c in s.child.iter_mut() {
                     *c = shift(*c, node_off[g], packet_off[g]);
                 }
+                d.write(s);
             }
         });
-    let mut blocks = Vec::with_capacity(ranges.len());
-    for (g, o) in outs.iter().enumerate() {
+    // SAFETY: the pieces above cover the `nn - n0` node and `np - p0` packet slots after the
+    // buffers' lengths exactly (`split_by_len` of the copied groups' lengths, which sum to
+    // them), and the loop over each group wrote every slot of its pieces.
+    #[allow(unsafe_code)]
+    unsafe {
+        out.nodes.set_len(nn);
+        out.packets.set_len(np);
+    }
+    for (g, o) in copied.iter().enumerate() {
         for f in &o.blocks {
             blocks.push(Fixed {
                 code: shift(f.code, node_off[g], packet_off[g]),
