@@ -274,7 +274,9 @@ macro_rules! block_builders {
                 let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
                 let area = half_area_a(lo, hi);
                 let mut cur = next as u32;
-                s.nodes[next] = BNode {
+                // The current subtree stays in registers: merging re-reads only the stack's
+                // nodes (written long before), never the one just stored.
+                let mut node = BNode {
                     lo,
                     hi,
                     left: 0,
@@ -286,6 +288,7 @@ macro_rules! block_builders {
                     gain: 0.0,
                     leaf: true,
                 };
+                s.nodes[next] = node;
                 next += 1;
                 let lvl = if p + 1 < m {
                     inp.level_at(b + p as u32)
@@ -297,7 +300,8 @@ macro_rules! block_builders {
                         break;
                     }
                     s.stack.pop();
-                    s.nodes[next] = merge(&s.nodes[top as usize], &s.nodes[cur as usize], top, cur);
+                    node = merge(&s.nodes[top as usize], &node, top, cur);
+                    s.nodes[next] = node;
                     cur = next as u32;
                     next += 1;
                 }
