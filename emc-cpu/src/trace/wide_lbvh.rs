@@ -571,19 +571,14 @@ fn emit_leaf<const W: usize>(
 /// Areas and positive gains are non-negative floats, whose bit patterns order as their values.
 #[inline(always)]
 fn open_priority(kn: &BNode) -> u64 {
-    let class = if !kn.leaf {
-        2
-    } else if kn.count > 1 && kn.gain > 0.0 {
-        1
-    } else {
-        0
-    };
-    let v = if kn.leaf { kn.gain } else { kn.area };
-    if class == 0 {
-        0
-    } else {
-        (class << 32) | u64::from(v.to_bits())
-    }
+    // Branch-free (which class a child falls in is data, and mispredicted): masks and
+    // selects only.
+    let inner = !kn.leaf;
+    let split = kn.leaf & (kn.count > 1) & (kn.gain > 0.0);
+    let class = 2 * u64::from(inner) + u64::from(split);
+    let v = if inner { kn.area } else { kn.gain };
+    let key = (class << 32) | u64::from(v.to_bits());
+    key & 0u64.wrapping_sub(u64::from(class != 0))
 }
 
 /// The SAH-optimal cover of the top tree by `W`-wide nodes (as `Plan` in `wide.rs`, the
