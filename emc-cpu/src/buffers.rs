@@ -57,6 +57,24 @@ pub fn cleared_with_room<T>(v: &mut Vec<T>, n: usize) {
     }
 }
 
+/// Make `v` a copy of `src`, copied in parallel on the current pool (a mesh copy of a large
+/// scene is a phase of its own: San Miguel's 170 MB took 12 ms on one thread). A reused
+/// allocation keeps its old elements until they are overwritten; a new one is filled in
+/// parallel first ([`resized_par`]).
+pub fn copied_par<T: Copy + Default + Send + Sync>(v: &mut Vec<T>, src: &[T]) {
+    resized_par(v, src.len(), T::default());
+    copy_par(v, src);
+}
+
+/// `dst.copy_from_slice(src)` in parallel pieces on the current pool (equal lengths).
+pub fn copy_par<T: Copy + Send + Sync>(dst: &mut [T], src: &[T]) {
+    const CHUNK: usize = 1 << 15;
+    assert_eq!(dst.len(), src.len(), "copy_par: lengths differ");
+    dst.par_chunks_mut(CHUNK)
+        .zip(src.par_chunks(CHUNK))
+        .for_each(|(d, s)| d.copy_from_slice(s));
+}
+
 /// A vector of `n` values made by `f`, filled in parallel.
 pub fn from_fn<T: Send>(n: usize, f: impl Fn(usize) -> T + Sync + Send) -> Vec<T> {
     let mut v: Vec<T> = Vec::with_capacity(n);

@@ -454,10 +454,8 @@ impl Accel {
             vertices,
             indices,
         )?;
-        vert_copy.clear();
-        vert_copy.extend_from_slice(vertices);
-        index_copy.clear();
-        index_copy.extend_from_slice(indices);
+        crate::buffers::copied_par(&mut vert_copy, vertices);
+        crate::buffers::copied_par(&mut index_copy, indices);
         a.vertices = vert_copy;
         a.indices = index_copy;
         a.debug_validate();
@@ -517,7 +515,7 @@ impl Accel {
         );
         self.refit = None;
         r?;
-        self.vertices.copy_from_slice(vertices);
+        crate::buffers::copy_par(&mut self.vertices, vertices);
         self.debug_validate();
         Ok(())
     }
@@ -558,7 +556,7 @@ impl Accel {
                 m
             }
         };
-        self.vertices.copy_from_slice(vertices);
+        crate::buffers::copy_par(&mut self.vertices, vertices);
         let (verts, idx) = (&self.vertices, &self.indices);
         self.bvh.refit(
             plan,
