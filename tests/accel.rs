@@ -537,6 +537,35 @@ fn builds_are_identical_at_any_thread_count() {
 }
 
 #[test]
+fn large_fast_builds_are_identical_at_any_thread_count() {
+    // Past the size where the top partition splits its halves as parallel tasks (2^17
+    // primitives) at several levels, and with many block groups for the workers to claim.
+    let s = scene::load_with(
+        "builtin:mixed",
+        &SceneOptions::default().with_prims(600_000),
+    )
+    .unwrap();
+    let opts = BuildOptions::preset(Preset::Fast);
+    let at = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| Accel::build(&s.vertices, &s.indices, &opts))
+            .unwrap()
+    };
+    let one = at(1);
+    for threads in [2, 3, 5] {
+        let other = at(threads);
+        let (x, y) = (one.wide_bvh(), other.wide_bvh());
+        assert!(
+            x.nodes == y.nodes && x.nodes8 == y.nodes8 && x.packets == y.packets,
+            "{threads} threads build another fast tree than one"
+        );
+    }
+}
+
+#[test]
 fn both_copies_of_the_fast_block_builders_build_the_same_tree() {
     use emc_cpu::trace::wide_lbvh::{force_baseline_tree, tree_isa};
     let (isa, why) = tree_isa();
