@@ -161,6 +161,12 @@ impl<K: RadixKey> Inputs<'_, K> {
         // Invariant: keys[lo - 1] has the bit clear, keys[hi] has it set.
         while lo < hi {
             let mid = lo + (hi - lo) / 2;
+            // Both possible next probes fetched while this one's key arrives: in a large range
+            // every probe misses the cache, and this overlaps one miss with the next.
+            if hi - lo > 64 {
+                prefetch(&self.keys[(lo + (mid - lo) / 2) as usize], 1);
+                prefetch(&self.keys[(mid + 1 + (hi - mid - 1) / 2) as usize], 1);
+            }
             if self.keys[mid as usize].widen() & bit != 0 {
                 hi = mid;
             } else {
