@@ -46,9 +46,88 @@ impl CpuInfo {
     }
 }
 
-/// Read the CPU once (cheap: a handful of CPUID instructions; callers cache the result).
+/// The answers of this module's CPUID reads, kept after the first call: CPUID traps to the
+/// hypervisor in a virtual machine (an encoder's set-up, which asks several times, took
+/// 0.11 ms on a cloud Zen 5, a tenth of encoding a million boxes). Atomics only, so `no_std`
+/// keeps it; threads racing on the first call compute and store the same values.
+#[cfg(target_arch = "x86_64")]
+mod cache {
+    use core::sync::atomic::{AtomicU32, Ordering};
+
+    /// Set in `FLAGS` once the other words hold the answer.
+    const READY: u32 = 1 << 31;
+    const BMI2: u32 = 1 << 0;
+    const AVX2: u32 = 1 << 1;
+    const AVX512_KNOWN: u32 = 1 << 2;
+    const AVX512: u32 = 1 << 3;
+    const SHUFFLE_KNOWN: u32 = 1 << 4;
+    const SHUFFLE: u32 = 1 << 5;
+
+    static VENDOR: [AtomicU32; 3] = [AtomicU32::new(0), AtomicU32::new(0), AtomicU32::new(0)];
+    static FAMILY: AtomicU32 = AtomicU32::new(0);
+    static MODEL: AtomicU32 = AtomicU32::new(0);
+    static FLAGS: AtomicU32 = AtomicU32::new(0);
+    /// The AVX-512 answers, each with its own "known" bit.
+    static EXTRA: AtomicU32 = AtomicU32::new(0);
+
+    pub(super) fn info(read: impl FnOnce() -> super::CpuInfo) -> super::CpuInfo {
+        let flags = FLAGS.load(Ordering::Acquire);
+        if flags & READY != 0 {
+            let mut vendor = [0u8; 12];
+            for (i, w) in VENDOR.iter().enumerate() {
+                vendor[4 * i..4 * i + 4].copy_from_slice(&w.load(Ordering::Relaxed).to_le_bytes());
+            }
+            return super::CpuInfo {
+                vendor,
+                family: FAMILY.load(Ordering::Relaxed),
+                model: MODEL.load(Ordering::Relaxed),
+                bmi2: flags & BMI2 != 0,
+                avx2: flags & AVX2 != 0,
+            };
+        }
+        let info = read();
+        for (i, w) in VENDOR.iter().enumerate() {
+            let b = &info.vendor[4 * i..4 * i + 4];
+            w.store(
+                u32::from_le_bytes([b[0], b[1], b[2], b[3]]),
+                Ordering::Relaxed,
+            );
+        }
+        FAMILY.store(info.family, Ordering::Relaxed);
+        MODEL.store(info.model, Ordering::Relaxed);
+        let bits = READY | if info.bmi2 { BMI2 } else { 0 } | if info.avx2 { AVX2 } else { 0 };
+        FLAGS.store(bits, Ordering::Release);
+        info
+    }
+
+    fn extra(known: u32, yes: u32, read: impl FnOnce() -> bool) -> bool {
+        let e = EXTRA.load(Ordering::Relaxed);
+        if e & known != 0 {
+            return e & yes != 0;
+        }
+        let v = read();
+        EXTRA.fetch_or(known | if v { yes } else { 0 }, Ordering::Relaxed);
+        v
+    }
+
+    pub(super) fn avx512(read: impl FnOnce() -> bool) -> bool {
+        extra(AVX512_KNOWN, AVX512, read)
+    }
+
+    pub(super) fn shuffle(read: impl FnOnce() -> bool) -> bool {
+        extra(SHUFFLE_KNOWN, SHUFFLE, read)
+    }
+}
+
+/// The CPU facts, read with CPUID on the first call and kept (see `cache`).
 #[cfg(target_arch = "x86_64")]
 pub fn detect() -> CpuInfo {
+    cache::info(read_cpu)
+}
+
+/// Read the CPU: a handful of CPUID instructions.
+#[cfg(target_arch = "x86_64")]
+fn read_cpu() -> CpuInfo {
     use core::arch::x86_64::{__cpuid, __cpuid_count};
     let l0 = __cpuid(0);
     let mut vendor = [0u8; 12];
@@ -108,9 +187,14 @@ fn xcr0() -> u64 {
 
 /// AVX-512 F, DQ, BW and VL present and enabled by the OS: CPUID leaf 7 EBX bits 16 (F),
 /// 17 (DQ), 30 (BW) and 31 (VL), plus XCR0 saving SSE/AVX state (bits 1-2) and the opmask
-/// and ZMM state (bits 5-7). Read with CPUID on each call (callers cache the answer).
+/// and ZMM state (bits 5-7). Read with CPUID on the first call and kept.
 #[cfg(target_arch = "x86_64")]
 pub fn has_avx512() -> bool {
+    cache::avx512(read_avx512)
+}
+
+#[cfg(target_arch = "x86_64")]
+fn read_avx512() -> bool {
     use core::arch::x86_64::{__cpuid, __cpuid_count};
     if __cpuid(0).eax < 7 {
         return false;
@@ -132,8 +216,10 @@ pub fn has_avx512() -> bool {
 pub fn has_avx512_bit_shuffle() -> bool {
     #[cfg(target_arch = "x86_64")]
     {
-        let ecx = core::arch::x86_64::__cpuid_count(7, 0).ecx;
-        has_avx512() && ecx & (1 << 1) != 0 && ecx & (1 << 12) != 0
+        cache::shuffle(|| {
+            let ecx = core::arch::x86_64::__cpuid_count(7, 0).ecx;
+            has_avx512() && ecx & (1 << 1) != 0 && ecx & (1 << 12) != 0
+        })
     }
     #[cfg(not(target_arch = "x86_64"))]
     false
@@ -167,4 +253,23 @@ pub fn fast_pdep() -> bool {
 #[inline]
 pub fn has_avx2() -> bool {
     detect().avx2
+}
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_kept_answers_equal_fresh_reads() {
+        // The first call reads and keeps, the later ones return what was kept: both must be
+        // what the CPU says now.
+        for _ in 0..3 {
+            assert_eq!(detect(), read_cpu());
+            assert_eq!(has_avx512(), read_avx512());
+        }
+        let ecx = core::arch::x86_64::__cpuid_count(7, 0).ecx;
+        let shuffle = read_avx512() && ecx & (1 << 1) != 0 && ecx & (1 << 12) != 0;
+        assert_eq!(has_avx512_bit_shuffle(), shuffle);
+        assert_eq!(has_avx512_bit_shuffle(), shuffle);
+    }
 }
