@@ -145,7 +145,10 @@ impl PreRay {
     pub fn new(ray: &Ray) -> PreRay {
         let org = ray.origin.to_array();
         let dir = ray.dir.to_array();
-        let inv = [1.0 / dir[0], 1.0 / dir[1], 1.0 / dir[2]];
+        // Divisions four at a time (one `divps` where a scalar `divss` each cost a per-ray
+        // constant of about a dozen cycles): IEEE division rounds the same in either form.
+        let inv4 = glam::Vec4::ONE / glam::Vec4::new(dir[0], dir[1], dir[2], 1.0);
+        let inv = [inv4.x, inv4.y, inv4.z];
         let near_is_max = [
             dir[0].is_sign_negative(),
             dir[1].is_sign_negative(),
@@ -165,7 +168,8 @@ impl PreRay {
         if dir[kz] < 0.0 {
             core::mem::swap(&mut kx, &mut ky);
         }
-        let shear = [dir[kx] / dir[kz], dir[ky] / dir[kz], 1.0 / dir[kz]];
+        let s4 = glam::Vec4::new(dir[kx], dir[ky], 1.0, 1.0) / glam::Vec4::splat(dir[kz]);
+        let shear = [s4.x, s4.y, s4.z];
         PreRay {
             org,
             dir,
