@@ -504,6 +504,28 @@ fn a_shared_context_changes_no_tree() {
     }
 }
 
+/// `opts`' build of `s` at each of `threads` equals its one-thread build, node for node and
+/// packet for packet (`what` names the case in a failure).
+fn assert_same_at_thread_counts(s: &Mesh, opts: &BuildOptions, threads: &[usize], what: &str) {
+    let at = |threads| {
+        let pool = rayon::ThreadPoolBuilder::new()
+            .num_threads(threads)
+            .build()
+            .unwrap();
+        pool.install(|| Accel::build(&s.vertices, &s.indices, opts))
+            .unwrap()
+    };
+    let one = at(1);
+    for &threads in threads {
+        let other = at(threads);
+        let (x, y) = (one.wide_bvh(), other.wide_bvh());
+        assert!(
+            x.nodes == y.nodes && x.nodes8 == y.nodes8 && x.packets == y.packets,
+            "{what}: {threads} threads build another tree than one"
+        );
+    }
+}
+
 #[test]
 fn builds_are_identical_at_any_thread_count() {
     // Large enough for many blocks (the parallel block phase) on every preset.
@@ -514,24 +536,8 @@ fn builds_are_identical_at_any_thread_count() {
     .unwrap();
     for preset in PRESETS {
         for width in [4, 8] {
-            let at = |threads| {
-                let opts = BuildOptions::preset(preset).with_width(width);
-                let pool = rayon::ThreadPoolBuilder::new()
-                    .num_threads(threads)
-                    .build()
-                    .unwrap();
-                pool.install(|| Accel::build(&s.vertices, &s.indices, &opts))
-                    .unwrap()
-            };
-            let one = at(1);
-            for threads in [2, 3] {
-                let other = at(threads);
-                let (x, y) = (one.wide_bvh(), other.wide_bvh());
-                assert!(
-                    x.nodes == y.nodes && x.nodes8 == y.nodes8 && x.packets == y.packets,
-                    "{preset:?}/{width}: {threads} threads build another tree than one"
-                );
-            }
+            let opts = BuildOptions::preset(preset).with_width(width);
+            assert_same_at_thread_counts(&s, &opts, &[2, 3], &format!("{preset:?}/{width}"));
         }
     }
 }
@@ -546,23 +552,7 @@ fn large_fast_builds_are_identical_at_any_thread_count() {
     )
     .unwrap();
     let opts = BuildOptions::preset(Preset::Fast);
-    let at = |threads| {
-        let pool = rayon::ThreadPoolBuilder::new()
-            .num_threads(threads)
-            .build()
-            .unwrap();
-        pool.install(|| Accel::build(&s.vertices, &s.indices, &opts))
-            .unwrap()
-    };
-    let one = at(1);
-    for threads in [2, 3, 5] {
-        let other = at(threads);
-        let (x, y) = (one.wide_bvh(), other.wide_bvh());
-        assert!(
-            x.nodes == y.nodes && x.nodes8 == y.nodes8 && x.packets == y.packets,
-            "{threads} threads build another fast tree than one"
-        );
-    }
+    assert_same_at_thread_counts(&s, &opts, &[2, 3, 5], "fast, 600k triangles");
 }
 
 #[test]
