@@ -729,7 +729,7 @@ pub fn build_tree<K: RadixKey, const W: usize>(
     let mut top = Vec::with_capacity(ranges.capacity());
     let root = partition(inp, 0, n, &mut ranges, &mut top);
     let parallel = rayon::current_num_threads() > 1 && ranges.len() > 1;
-    // Built by pushes (in parallel: the first share by pushes, the rest copied after it).
+    // Built by pushes (in parallel: the front groups by pushes, the back ones copied after).
     out.nodes.clear();
     out.packets.clear();
     if root & REF_FLAG != 0 {
@@ -812,18 +812,17 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
     outs.resize_with(groups, GroupOut::default);
     // Groups not yet claimed: `front..back`.
     let claims = Mutex::new((0usize, groups));
-    let claim_front = || {
+    // The next group from the front (or the back), if any is left.
+    let claim = |front: bool| {
         let mut c = claims.lock().unwrap_or_else(|e| e.into_inner());
         (c.0 < c.1).then(|| {
-            c.0 += 1;
-            c.0 - 1
-        })
-    };
-    let claim_back = || {
-        let mut c = claims.lock().unwrap_or_else(|e| e.into_inner());
-        (c.0 < c.1).then(|| {
-            c.1 -= 1;
-            c.1
+            if front {
+                c.0 += 1;
+                c.0 - 1
+            } else {
+                c.1 -= 1;
+                c.1
+            }
         })
     };
     let mut blocks = Vec::with_capacity(ranges.len());
@@ -834,14 +833,14 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
     let mut direct = 0;
     rayon::join(
         || {
-            while let Some(g) = claim_front() {
+            while let Some(g) = claim(true) {
                 build_blocks(inp, &ranges[cuts[g]..cuts[g + 1]], out, &mut blocks);
                 direct = g + 1;
             }
         },
         || {
             (1..threads.max(2)).into_par_iter().for_each(|_| {
-                while let Some(g) = claim_back() {
+                while let Some(g) = claim(false) {
                     let mut o = slots[g].lock().unwrap_or_else(|e| e.into_inner());
                     let o = &mut **o;
                     o.nodes.clear();
