@@ -635,6 +635,67 @@ proptest! {
     }
 }
 
+/// Holds `copy` against `bvh` node by node from both roots (bounds bits, leaf primitives in
+/// order), and its layout: every inner node's left child right after it, the right child
+/// after its left subtree, the leaves' primitives in the order the walk meets them.
+fn check_depth_first(bvh: &Bvh, copy: &Bvh) {
+    assert_eq!(copy.root, 0);
+    assert_eq!(copy.nodes.len(), bvh.nodes.len());
+    assert_eq!(copy.prim_indices.len(), bvh.prim_indices.len());
+    // (node of `bvh`, node of `copy`), visited left subtree first.
+    let mut stack = vec![(bvh.root, 0u32)];
+    let (mut next_node, mut next_prim) = (0u32, 0u32);
+    while let Some((a, b)) = stack.pop() {
+        assert_eq!(b, next_node, "not in pre-order");
+        next_node += 1;
+        let (na, nb) = (&bvh.nodes[a as usize], &copy.nodes[b as usize]);
+        assert_eq!(
+            na.bounds.min.to_array().map(f32::to_bits),
+            nb.bounds.min.to_array().map(f32::to_bits)
+        );
+        assert_eq!(
+            na.bounds.max.to_array().map(f32::to_bits),
+            nb.bounds.max.to_array().map(f32::to_bits)
+        );
+        assert_eq!(na.is_leaf(), nb.is_leaf());
+        if na.is_leaf() {
+            assert_eq!(nb.first(), next_prim);
+            assert_eq!(na.count(), nb.count());
+            let (fa, fb, c) = (
+                na.first() as usize,
+                nb.first() as usize,
+                na.count() as usize,
+            );
+            assert_eq!(bvh.prim_indices[fa..fa + c], copy.prim_indices[fb..fb + c]);
+            next_prim += nb.count();
+        } else {
+            assert_eq!(nb.left(), b + 1);
+            assert!(nb.right() > b + 1);
+            stack.push((na.right(), nb.right()));
+            stack.push((na.left(), nb.left()));
+        }
+    }
+    assert_eq!(next_node as usize, copy.nodes.len());
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(32))]
+
+    /// The depth-first copy the wide collapse walks is the same tree, renumbered.
+    #[test]
+    fn depth_first_copy_of_a_restructured_tree(n in 1usize..2000, seed in any::<u64>(),
+                                               random_topology in any::<bool>()) {
+        let aabbs = random_boxes(n, seed);
+        let mut bvh = if random_topology { random_tree(&aabbs, seed) } else { lbvh_like(&aabbs) };
+        restructure(&mut bvh, &aabbs, &AtrConfig::default()).expect("valid tree");
+        // Into a buffer holding another tree: every part of it is rewritten.
+        let mut copy = lbvh_like(&random_boxes(n / 2 + 1, seed ^ 1));
+        bvh.depth_first_into(&mut copy);
+        copy.validate(&aabbs).expect("the copy is valid");
+        check_depth_first(&bvh, &copy);
+    }
+}
+
 #[test]
 fn thread_count_does_not_change_the_result() {
     let aabbs = random_boxes(60_000, 1234);

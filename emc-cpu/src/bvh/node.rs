@@ -107,3 +107,47 @@ pub struct Bvh {
     /// Index of the root node.
     pub root: u32,
 }
+
+impl Bvh {
+    /// This tree renumbered depth-first into `out` (its buffers reused): every node's left
+    /// child right after it, the root at 0, and the leaves' primitives in the order the leaves
+    /// are met. The same tree; a consumer that walks it depth-first (the wide collapse) then
+    /// reads both arrays front to back instead of jumping where a restructuring pass (ATR
+    /// rewrites treelets in place) left each subtree. `self` must be a valid tree.
+    pub fn depth_first_into(&self, out: &mut Bvh) {
+        out.nodes.clear();
+        out.nodes.reserve(self.nodes.len());
+        out.prim_indices.clear();
+        out.prim_indices.reserve(self.prim_indices.len());
+        out.root = 0;
+        if self.nodes.is_empty() {
+            return;
+        }
+        // (old node, new index of the parent whose right link it fills; u32::MAX: none). A
+        // stack-based pre-order: left children come off right after their parent.
+        let mut stack: Vec<(u32, u32)> = Vec::with_capacity(64);
+        stack.push((self.root, u32::MAX));
+        while let Some((i, parent)) = stack.pop() {
+            let here = out.nodes.len() as u32;
+            if parent != u32::MAX {
+                let p = &mut out.nodes[parent as usize];
+                *p = Node::inner(p.bounds, p.left(), here);
+            }
+            let node = self.nodes[i as usize];
+            if node.is_leaf() {
+                let (f, c) = (node.first() as usize, node.count());
+                let first = out.prim_indices.len() as u32;
+                out.prim_indices
+                    .extend_from_slice(&self.prim_indices[f..f + c as usize]);
+                out.nodes.push(Node::leaf(node.bounds, first, c));
+            } else {
+                // The right child is read long after this: fetch it now.
+                crate::trace::traverse::prefetch(&self.nodes[node.right() as usize], 32);
+                // Its right link is set when the right child comes off the stack.
+                out.nodes.push(Node::inner(node.bounds, here + 1, 0));
+                stack.push((node.right(), here));
+                stack.push((node.left(), u32::MAX));
+            }
+        }
+    }
+}

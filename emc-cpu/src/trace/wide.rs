@@ -476,7 +476,7 @@ impl WideBvh {
         } = scratch;
         if !eight {
             // The 4-wide tree alone chooses its leaves.
-            plan4.fill(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false, walk);
+            plan4.fill(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false, true, walk);
             let (nodes, depth) = collapse::<WIDTH>(
                 bvh,
                 plan4,
@@ -501,7 +501,7 @@ impl WideBvh {
         }
         // The 8-wide tree chooses the leaves (and emits their packets in its depth-first
         // order); the 4-wide tree is planned over exactly those leaves and shares them.
-        plan8.fill(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false, walk);
+        plan8.fill(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false, true, walk);
         if four {
             leaf_codes.clear();
             leaf_codes.resize(bvh.nodes.len(), EMPTY);
@@ -522,7 +522,13 @@ impl WideBvh {
             walk,
         )?;
         let (nodes, depth) = if four {
-            plan4.fill(bvh, |_, _| false, |n| leaf_codes[n as usize] != EMPTY, walk);
+            plan4.fill(
+                bvh,
+                |_, _| false,
+                |n| leaf_codes[n as usize] != EMPTY,
+                false,
+                walk,
+            );
             collapse::<WIDTH>(bvh, plan4, pad, |n| leaf_codes[n as usize], old4, walk)?
         } else {
             (Vec::new(), 0)
@@ -813,12 +819,16 @@ impl<const W: usize> Plan<W> {
     /// Plan the collapse of the validated `bvh` (every entry of the plan rewritten for the
     /// nodes the collapse can reach). `may_leaf(n, triangles)` says whether inner BVH2 node
     /// `n`, whose subtree holds `triangles`, may become one leaf; `forced(n)` makes node `n` a
-    /// leaf whatever it costs (its subtree is then never opened).
+    /// leaf whatever it costs (its subtree is then never opened). With `index_order`, a tree
+    /// whose children all sit after their parents (depth-first layouts) is planned in reverse
+    /// index order, one pass front to back over its arrays, and every node is planned (also
+    /// those below forced nodes: the answers are the same, the work larger).
     fn fill(
         &mut self,
         bvh: &Bvh,
         may_leaf: impl Fn(u32, u32) -> bool,
         forced: impl Fn(u32) -> bool,
+        index_order: bool,
         walk: &mut Walk,
     ) {
         let n = bvh.nodes.len();
@@ -828,21 +838,7 @@ impl<const W: usize> Plan<W> {
         crate::buffers::resized(&mut plan.leaf, n, false);
         let prims = &mut walk.prims;
         crate::buffers::resized(prims, n, 0u32);
-        // Pre-order; its reverse visits children before parents.
-        let pre = &mut walk.pre;
-        pre.clear();
-        let stack = &mut walk.stack;
-        stack.clear();
-        stack.push(bvh.root);
-        while let Some(i) = stack.pop() {
-            pre.push(i);
-            let node = &bvh.nodes[i as usize];
-            if !node.is_leaf() && !forced(i) {
-                stack.push(node.right());
-                stack.push(node.left());
-            }
-        }
-        for &i in pre.iter().rev() {
+        let mut step = |i: u32| {
             let node = &bvh.nodes[i as usize];
             let a = half_area(&node.bounds);
             let at = i as usize;
@@ -855,7 +851,7 @@ impl<const W: usize> Plan<W> {
                 prims[at] = p;
                 plan.cost[at] = [leaf_cost(a, p); W];
                 plan.leaf[at] = true;
-                continue;
+                return;
             }
             let (l, r) = (node.left() as usize, node.right() as usize);
             let p = prims[l] + prims[r];
@@ -876,7 +872,26 @@ impl<const W: usize> Plan<W> {
             }
             plan.cost[at] = cost;
             plan.split[at] = split;
+        };
+        if index_order && children_after_parents(bvh) {
+            (0..n as u32).rev().for_each(step);
+            return;
         }
+        // Pre-order; its reverse visits children before parents.
+        let pre = &mut walk.pre;
+        pre.clear();
+        let stack = &mut walk.stack;
+        stack.clear();
+        stack.push(bvh.root);
+        while let Some(i) = stack.pop() {
+            pre.push(i);
+            let node = &bvh.nodes[i as usize];
+            if !node.is_leaf() && !forced(i) {
+                stack.push(node.right());
+                stack.push(node.left());
+            }
+        }
+        pre.iter().rev().for_each(|&i| step(i));
     }
 
     /// The BVH2 nodes that become the children of the wide node made of inner node `n`, in
@@ -904,6 +919,16 @@ impl<const W: usize> Plan<W> {
             }
         }
     }
+}
+
+/// Whether every inner node's children have higher indices than it (so a pass in reverse
+/// index order meets children before parents) and the root is node 0: true of depth-first
+/// layouts. One pass front to back.
+fn children_after_parents(bvh: &Bvh) -> bool {
+    bvh.root == 0
+        && bvh.nodes.iter().enumerate().all(|(i, node)| {
+            node.is_leaf() || (node.left() as usize > i && node.right() as usize > i)
+        })
 }
 
 /// Half the surface area of `b`.
