@@ -693,6 +693,21 @@ proptest! {
         bvh.depth_first_into(&mut copy);
         copy.validate(&aabbs).expect("the copy is valid");
         check_depth_first(&bvh, &copy);
+        // With a callback: the same copy, and every node reported once, after its children,
+        // with its links final.
+        let mut again = Bvh::default();
+        let mut done = vec![false; bvh.nodes.len()];
+        bvh.depth_first_into_with(&mut again, |nodes, i| {
+            let node = nodes[i as usize];
+            assert!(!done[i as usize], "node {i} reported twice");
+            assert_eq!(node, copy.nodes[i as usize], "node {i} not final when reported");
+            if !node.is_leaf() {
+                assert!(done[node.left() as usize] && done[node.right() as usize]);
+            }
+            done[i as usize] = true;
+        });
+        assert!(done.iter().all(|&d| d));
+        assert_eq!(again, copy);
     }
 }
 

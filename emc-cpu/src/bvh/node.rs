@@ -115,6 +115,14 @@ impl Bvh {
     /// reads both arrays front to back instead of jumping where a restructuring pass (ATR
     /// rewrites treelets in place) left each subtree. `self` must be a valid tree.
     pub fn depth_first_into(&self, out: &mut Bvh) {
+        self.depth_first_into_with(out, |_, _| {});
+    }
+
+    /// [`Bvh::depth_first_into`], calling `done(nodes, i)` for every new node `i` once its
+    /// subtree is complete (children before parents): `nodes` is the copy so far, in which
+    /// node `i` and everything below it are final. Work on the copy's nodes done here runs
+    /// while the walk's scattered reads of `self` are in flight.
+    pub fn depth_first_into_with(&self, out: &mut Bvh, mut done: impl FnMut(&[Node], u32)) {
         out.nodes.clear();
         out.nodes.reserve(self.nodes.len());
         out.prim_indices.clear();
@@ -126,12 +134,21 @@ impl Bvh {
         // (old node, new index of the parent whose right link it fills; u32::MAX: none). A
         // stack-based pre-order: left children come off right after their parent.
         let mut stack: Vec<(u32, u32)> = Vec::with_capacity(64);
+        // New inner nodes whose subtree is not complete, innermost last; the top bit is set
+        // once the walk is in the right subtree.
+        const RIGHT: u32 = 1 << 31;
+        let mut open: Vec<u32> = Vec::with_capacity(64);
         stack.push((self.root, u32::MAX));
         while let Some((i, parent)) = stack.pop() {
             let here = out.nodes.len() as u32;
             if parent != u32::MAX {
                 let p = &mut out.nodes[parent as usize];
                 *p = Node::inner(p.bounds, p.left(), here);
+                // The parent's left subtree is complete: it is the innermost open node.
+                debug_assert_eq!(open.last(), Some(&parent));
+                if let Some(top) = open.last_mut() {
+                    *top |= RIGHT;
+                }
             }
             let node = self.nodes[i as usize];
             if node.is_leaf() {
@@ -140,11 +157,21 @@ impl Bvh {
                 out.prim_indices
                     .extend_from_slice(&self.prim_indices[f..f + c as usize]);
                 out.nodes.push(Node::leaf(node.bounds, first, c));
+                done(&out.nodes, here);
+                // Every open node whose right subtree this leaf ends is complete.
+                while let Some(&top) = open.last() {
+                    if top & RIGHT == 0 {
+                        break;
+                    }
+                    open.pop();
+                    done(&out.nodes, top & !RIGHT);
+                }
             } else {
                 // The right child is read long after this: fetch it now.
                 crate::trace::traverse::prefetch(&self.nodes[node.right() as usize], 32);
                 // Its right link is set when the right child comes off the stack.
                 out.nodes.push(Node::inner(node.bounds, here + 1, 0));
+                open.push(here);
                 stack.push((node.right(), here));
                 stack.push((node.left(), u32::MAX));
             }

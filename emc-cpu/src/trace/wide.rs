@@ -409,7 +409,7 @@ impl WideBvh {
             .iter()
             .flatten()
             .fold(0.0f32, |m, v| m.max(v.abs().max_element()));
-        WideBvh::collapse_checked(bvh, tris, max_abs, four, eight, old, scratch)
+        WideBvh::collapse_checked(bvh, tris, max_abs, four, eight, old, scratch, None)
     }
 
     /// [`WideBvh::from_bvh2_width`] into this structure, for a BVH2 from this crate's own
@@ -419,10 +419,13 @@ impl WideBvh {
     /// rebuild faults no fresh pages for them and frees nothing). The BVH2's validation runs
     /// in debug builds only (the tests validate the wide trees), because those builders place
     /// every triangle once and bound it by construction. On an error the structure is left
-    /// empty.
+    /// empty. With `copy`, the collapse first copies `bvh` depth-first into it (planning the
+    /// traced width during the copy: see [`Bvh::depth_first_into_with`]) and then reads the
+    /// copy, for a BVH2 whose subtrees are scattered over its arrays.
     pub(crate) fn rebuild_from_own_mesh(
         &mut self,
         bvh: &Bvh,
+        copy: Option<&mut Bvh>,
         mesh: Indexed<'_>,
         max_abs: f32,
         width: usize,
@@ -443,12 +446,14 @@ impl WideBvh {
         }
         let old = std::mem::replace(self, WideBvh::empty());
         let (four, eight) = (width != WIDTH8, width != WIDTH);
-        *self = WideBvh::collapse_checked(bvh, &mesh, max_abs, four, eight, old, scratch)?;
+        *self = WideBvh::collapse_checked(bvh, &mesh, max_abs, four, eight, old, scratch, copy)?;
         Ok(())
     }
 
     /// The collapse of a BVH2 checked against `tris` (at least one triangle, every corner
-    /// finite, largest absolute coordinate `max_abs`).
+    /// finite, largest absolute coordinate `max_abs`); with `copy`, of the depth-first copy of
+    /// the BVH2 made into it (see [`WideBvh::rebuild_from_own_mesh`]).
+    #[allow(clippy::too_many_arguments)]
     fn collapse_checked<T: Corners + ?Sized>(
         bvh: &Bvh,
         tris: &T,
@@ -457,6 +462,7 @@ impl WideBvh {
         eight: bool,
         old: WideBvh,
         scratch: &mut CollapseScratch,
+        copy: Option<&mut Bvh>,
     ) -> Result<WideBvh, TraceError> {
         // Child boxes are padded by 2^-16 of the largest coordinate: the triangle test rounds
         // `vertex − origin` to ulps of the coordinates, so with needles thinner than an ulp it
@@ -474,9 +480,26 @@ impl WideBvh {
             emit: prims,
             leaf_codes,
         } = scratch;
+        let may_leaf = |_, p| p <= MAX_LEAF_TRIANGLES;
+        // With a copy to make, the first tree's plan is made during the copy, and everything
+        // after reads the copy.
+        let copied = copy.is_some();
+        let bvh = match copy {
+            Some(out) => {
+                if eight {
+                    plan8.fill_copying(bvh, out, may_leaf, walk);
+                } else {
+                    plan4.fill_copying(bvh, out, may_leaf, walk);
+                }
+                &*out
+            }
+            None => bvh,
+        };
         if !eight {
             // The 4-wide tree alone chooses its leaves.
-            plan4.fill(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false, true, walk);
+            if !copied {
+                plan4.fill(bvh, may_leaf, |_| false, true, walk);
+            }
             let (nodes, depth) = collapse::<WIDTH>(
                 bvh,
                 plan4,
@@ -501,7 +524,9 @@ impl WideBvh {
         }
         // The 8-wide tree chooses the leaves (and emits their packets in its depth-first
         // order); the 4-wide tree is planned over exactly those leaves and shares them.
-        plan8.fill(bvh, |_, p| p <= MAX_LEAF_TRIANGLES, |_| false, true, walk);
+        if !copied {
+            plan8.fill(bvh, may_leaf, |_| false, true, walk);
+        }
         if four {
             leaf_codes.clear();
             leaf_codes.resize(bvh.nodes.len(), EMPTY);
@@ -848,30 +873,11 @@ impl<const W: usize> Plan<W> {
                 } else {
                     subtree_triangles(bvh, i)
                 };
-                prims[at] = p;
-                plan.cost[at] = [leaf_cost(a, p); W];
-                plan.leaf[at] = true;
-                return;
-            }
-            let (l, r) = (node.left() as usize, node.right() as usize);
-            let p = prims[l] + prims[r];
-            prims[at] = p;
-            let (dist, split) = crate::trace::cover::dist(&plan.cost[l], &plan.cost[r]);
-            let inner = COST_NODE * a + dist[W - 1];
-            let as_leaf = if may_leaf(i, p) {
-                leaf_cost(a, p)
+                plan.plan_leaf(prims, at, a, p);
             } else {
-                f32::INFINITY
-            };
-            let mut cost = [0.0f32; W];
-            let leaf = as_leaf <= inner;
-            cost[0] = if leaf { as_leaf } else { inner };
-            plan.leaf[at] = leaf;
-            for j in 2..=W {
-                cost[j - 1] = cost[j - 2].min(dist[j - 1]);
+                let (l, r) = (node.left() as usize, node.right() as usize);
+                plan.plan_inner(prims, at, a, l, r, |p| may_leaf(i, p));
             }
-            plan.cost[at] = cost;
-            plan.split[at] = split;
         };
         if index_order && children_after_parents(bvh) {
             (0..n as u32).rev().for_each(step);
@@ -892,6 +898,75 @@ impl<const W: usize> Plan<W> {
             }
         }
         pre.iter().rev().for_each(|&i| step(i));
+    }
+
+    /// [`Plan::fill`] of `src` copied depth-first into `out` ([`Bvh::depth_first_into`]), in
+    /// the one walk: each node is planned as soon as its subtree is copied, so the plan's work
+    /// overlaps the walk's scattered reads; the plan is then `out`'s. No node is forced.
+    fn fill_copying(
+        &mut self,
+        src: &Bvh,
+        out: &mut Bvh,
+        may_leaf: impl Fn(u32, u32) -> bool,
+        walk: &mut Walk,
+    ) {
+        let n = src.nodes.len();
+        let plan = self;
+        crate::buffers::resized(&mut plan.cost, n, [0.0; W]);
+        crate::buffers::resized(&mut plan.split, n, [0; W]);
+        crate::buffers::resized(&mut plan.leaf, n, false);
+        let prims = &mut walk.prims;
+        crate::buffers::resized(prims, n, 0u32);
+        src.depth_first_into_with(out, |nodes, i| {
+            let node = &nodes[i as usize];
+            let (a, at) = (half_area(&node.bounds), i as usize);
+            if node.is_leaf() {
+                plan.plan_leaf(prims, at, a, node.count());
+            } else {
+                let (l, r) = (node.left() as usize, node.right() as usize);
+                plan.plan_inner(prims, at, a, l, r, |p| may_leaf(i, p));
+            }
+        });
+    }
+
+    /// Plan node `at` (half area `a`) as a leaf of `p` triangles.
+    #[inline(always)]
+    fn plan_leaf(&mut self, prims: &mut [u32], at: usize, a: f32, p: u32) {
+        prims[at] = p;
+        self.cost[at] = [leaf_cost(a, p); W];
+        self.leaf[at] = true;
+    }
+
+    /// Plan inner node `at` (half area `a`) from its planned children `l` and `r`;
+    /// `may_leaf(triangles)` says whether it may become one leaf.
+    #[inline(always)]
+    fn plan_inner(
+        &mut self,
+        prims: &mut [u32],
+        at: usize,
+        a: f32,
+        l: usize,
+        r: usize,
+        may_leaf: impl Fn(u32) -> bool,
+    ) {
+        let p = prims[l] + prims[r];
+        prims[at] = p;
+        let (dist, split) = crate::trace::cover::dist(&self.cost[l], &self.cost[r]);
+        let inner = COST_NODE * a + dist[W - 1];
+        let as_leaf = if may_leaf(p) {
+            leaf_cost(a, p)
+        } else {
+            f32::INFINITY
+        };
+        let mut cost = [0.0f32; W];
+        let leaf = as_leaf <= inner;
+        cost[0] = if leaf { as_leaf } else { inner };
+        self.leaf[at] = leaf;
+        for j in 2..=W {
+            cost[j - 1] = cost[j - 2].min(dist[j - 1]);
+        }
+        self.cost[at] = cost;
+        self.split[at] = split;
     }
 
     /// The BVH2 nodes that become the children of the wide node made of inner node `n`, in
