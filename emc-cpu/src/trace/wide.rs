@@ -858,11 +858,8 @@ impl<const W: usize> Plan<W> {
     ) {
         let n = bvh.nodes.len();
         let plan = self;
-        crate::buffers::resized(&mut plan.cost, n, [0.0; W]);
-        crate::buffers::resized(&mut plan.split, n, [0; W]);
-        crate::buffers::resized(&mut plan.leaf, n, false);
+        plan.size_for(n, &mut walk.prims);
         let prims = &mut walk.prims;
-        crate::buffers::resized(prims, n, 0u32);
         let mut step = |i: u32| {
             let node = &bvh.nodes[i as usize];
             let a = half_area(&node.bounds);
@@ -910,13 +907,9 @@ impl<const W: usize> Plan<W> {
         may_leaf: impl Fn(u32, u32) -> bool,
         walk: &mut Walk,
     ) {
-        let n = src.nodes.len();
         let plan = self;
-        crate::buffers::resized(&mut plan.cost, n, [0.0; W]);
-        crate::buffers::resized(&mut plan.split, n, [0; W]);
-        crate::buffers::resized(&mut plan.leaf, n, false);
+        plan.size_for(src.nodes.len(), &mut walk.prims);
         let prims = &mut walk.prims;
-        crate::buffers::resized(prims, n, 0u32);
         src.depth_first_into_with(out, |nodes, i| {
             let node = &nodes[i as usize];
             let (a, at) = (half_area(&node.bounds), i as usize);
@@ -927,6 +920,15 @@ impl<const W: usize> Plan<W> {
                 plan.plan_inner(prims, at, a, l, r, |p| may_leaf(i, p));
             }
         });
+    }
+
+    /// Size the plan and the triangle counts `prims` for a BVH2 of `n` nodes (every entry
+    /// the planning reaches is rewritten).
+    fn size_for(&mut self, n: usize, prims: &mut Vec<u32>) {
+        crate::buffers::resized(&mut self.cost, n, [0.0; W]);
+        crate::buffers::resized(&mut self.split, n, [0; W]);
+        crate::buffers::resized(&mut self.leaf, n, false);
+        crate::buffers::resized(prims, n, 0u32);
     }
 
     /// Plan node `at` (half area `a`) as a leaf of `p` triangles.
