@@ -41,7 +41,7 @@ use emc_core::{Aabb, LayoutSpec};
 use crate::auto::LayoutChoice;
 
 use crate::build::{build_aabbs_inline_in, BuildArena, Builder};
-use crate::bvh::atrbvh::{restructure_built as restructure_atr, AtrConfig};
+use crate::bvh::atrbvh::{restructure_built as restructure_atr, AtrConfig, AtrScratch};
 use crate::bvh::binned_sah::{build_binned_sah_leaves_in, BinnedScratch, LeafRule, DEFAULT_BINS};
 use crate::bvh::collapse::collapse_bvh;
 use crate::bvh::refit::CollapseParams;
@@ -266,6 +266,8 @@ pub struct BuildContext {
     collapse: CollapseScratch,
     /// The depth-first copy of a restructured BVH2 that the collapse walks.
     depth_first: Bvh,
+    /// The treelet restructuring's per-node arrays (balanced preset).
+    atr: AtrScratch,
     /// The buffers dropped structures built in this context gave back.
     spare: Arc<Spare>,
 }
@@ -292,6 +294,7 @@ impl BuildContext {
             self.arena = BuildArena::default();
             self.collapse = CollapseScratch::default();
             self.depth_first = Bvh::default();
+            self.atr = AtrScratch::default();
         }
     }
 }
@@ -737,7 +740,7 @@ fn build_over(
     if restructured && !bvh2.1 && opts.leaf_size.is_none() {
         // Restructuring rewrote treelets in place, scattering each subtree's nodes: the
         // collapse walks a depth-first copy instead, planned while it is made (stanford-dragon
-        // balanced, one thread: copy, plan and collapse 130 → 72 ms).
+        // balanced, one thread: 322 → 282 ms for the whole build).
         let mut dfs = std::mem::take(&mut ctx.depth_first);
         let r = bvh.rebuild_from_own_mesh(
             &bvh2.0,
@@ -840,7 +843,8 @@ fn bvh2_of_boxes(opts: &BuildOptions, ctx: &mut BuildContext) -> Result<(Bvh, bo
         return Ok((out.bvh, false));
     }
     let mut bvh = out.bvh;
-    restructure_atr(&mut bvh, aabbs, &AtrConfig::default()).map_err(TraceError::Restructure)?;
+    restructure_atr(&mut bvh, aabbs, &AtrConfig::default(), &mut ctx.atr)
+        .map_err(TraceError::Restructure)?;
     // Without a leaf size of its own, the restructured tree keeps one triangle per leaf: the
     // wide collapse's cover DP chooses the leaves itself (up to eight triangles). An SAH leaf
     // collapse before it was measured to change nothing the DP chooses (same wide SAH and work
