@@ -695,7 +695,7 @@ fn build_over(
     vertices: &[Vec3],
     indices: &[[u32; 3]],
 ) -> Result<(), TraceError> {
-    let (_, layout, _) = opts.resolve();
+    let (_, layout, restructured) = opts.resolve();
     // The radix tree (Karras = Apetrei) without restructuring goes straight to the wide
     // tree; the other builders make a BVH2 that is then collapsed.
     *phases = FastTimes::default();
@@ -736,28 +736,14 @@ fn build_over(
     let max_abs = p.min.abs().max_element().max(p.max.abs().max_element());
     let bvh2 = bvh2_of_boxes(opts, ctx)?;
     let mesh = Indexed { vertices, indices };
-    let (_, _, restructured) = opts.resolve();
-    if restructured && !bvh2.1 && opts.leaf_size.is_none() {
-        // Restructuring rewrote treelets in place, scattering each subtree's nodes: the
-        // collapse walks a depth-first copy instead, planned while it is made (stanford-dragon
-        // balanced, one thread: 322 → 282 ms for the whole build).
-        let mut dfs = std::mem::take(&mut ctx.depth_first);
-        let r = bvh.rebuild_from_own_mesh(
-            &bvh2.0,
-            Some(&mut dfs),
-            mesh,
-            max_abs,
-            width,
-            &mut ctx.collapse,
-        );
-        ctx.recycle(bvh2);
-        ctx.depth_first = dfs;
-        r
-    } else {
-        let r = bvh.rebuild_from_own_mesh(&bvh2.0, None, mesh, max_abs, width, &mut ctx.collapse);
-        ctx.recycle(bvh2);
-        r
-    }
+    // Restructuring rewrote treelets in place, scattering each subtree's nodes: the collapse
+    // then walks a depth-first copy, planned while it is made (stanford-dragon balanced, one
+    // thread: 322 → 282 ms for the whole build).
+    let scattered = restructured && !bvh2.1 && opts.leaf_size.is_none();
+    let copy = scattered.then_some(&mut ctx.depth_first);
+    let r = bvh.rebuild_from_own_mesh(&bvh2.0, copy, mesh, max_abs, width, &mut ctx.collapse);
+    ctx.recycle(bvh2);
+    r
 }
 
 impl BuildContext {
