@@ -2031,6 +2031,8 @@ fn occluded_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
             if STATS {
                 stats.node_tests += 1;
             }
+            // The leaf flags first: their load does not wait for the test.
+            let lm = lanes.leaves(node);
             let (mask, _) = lanes.test(node, r, cull);
             // Fetch every entered child before testing any, so their cache misses overlap.
             // (Measured: AO +2-8% on pbrt-bathroom, stanford-dragon and pbrt-crown; the same
@@ -2040,7 +2042,7 @@ fn occluded_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
                 let lane = m.trailing_zeros() as usize;
                 m &= m - 1;
                 let child = node.child[lane];
-                if child & LEAF != 0 {
+                if lm >> lane & 1 != 0 {
                     prefetch(&bvh.packets[(child & !LEAF) as usize], 192);
                 } else {
                     prefetch(&nodes[child as usize], core::mem::size_of::<WideNodeN<W>>());
@@ -2054,7 +2056,7 @@ fn occluded_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
                 let lane = m.trailing_zeros() as usize;
                 m &= m - 1;
                 let child = node.child[lane];
-                if child & LEAF != 0 {
+                if lm >> lane & 1 != 0 {
                     if leaf.visit(child, stats) {
                         return true;
                     }
