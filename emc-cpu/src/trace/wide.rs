@@ -480,26 +480,29 @@ impl WideBvh {
             emit: prims,
             leaf_codes,
         } = scratch;
+        // The plan of the tree that chooses the leaves: the 8-wide one when it is built, else
+        // the 4-wide one alone. With a copy to make, it is made during the copy, and
+        // everything after reads the copy.
         let may_leaf = |_, p| p <= MAX_LEAF_TRIANGLES;
-        // With a copy to make, the first tree's plan is made during the copy, and everything
-        // after reads the copy.
-        let copied = copy.is_some();
-        let bvh = match copy {
-            Some(out) => {
-                if eight {
-                    plan8.fill_copying(bvh, out, may_leaf, walk);
-                } else {
-                    plan4.fill_copying(bvh, out, may_leaf, walk);
-                }
+        let bvh = match (copy, eight) {
+            (Some(out), true) => {
+                plan8.fill_copying(bvh, out, may_leaf, walk);
                 &*out
             }
-            None => bvh,
+            (Some(out), false) => {
+                plan4.fill_copying(bvh, out, may_leaf, walk);
+                &*out
+            }
+            (None, true) => {
+                plan8.fill(bvh, may_leaf, |_| false, true, walk);
+                bvh
+            }
+            (None, false) => {
+                plan4.fill(bvh, may_leaf, |_| false, true, walk);
+                bvh
+            }
         };
         if !eight {
-            // The 4-wide tree alone chooses its leaves.
-            if !copied {
-                plan4.fill(bvh, may_leaf, |_| false, true, walk);
-            }
             let (nodes, depth) = collapse::<WIDTH>(
                 bvh,
                 plan4,
@@ -522,11 +525,8 @@ impl WideBvh {
                 leaves,
             });
         }
-        // The 8-wide tree chooses the leaves (and emits their packets in its depth-first
-        // order); the 4-wide tree is planned over exactly those leaves and shares them.
-        if !copied {
-            plan8.fill(bvh, may_leaf, |_| false, true, walk);
-        }
+        // The 8-wide tree chose the leaves (and emits their packets in its depth-first order);
+        // the 4-wide tree is planned over exactly those leaves and shares them.
         if four {
             leaf_codes.clear();
             leaf_codes.resize(bvh.nodes.len(), EMPTY);
