@@ -347,10 +347,24 @@ mod avx512 {
         /// as `max_sse`/`min_sse` do).
         #[inline(always)]
         pub fn test(&self, node: &WideNode8, tfar: f32) -> LaneHitsN<WIDTH8> {
+            let (t0, entered) = self.test_raw(node, tfar);
+            // SAFETY: only reached with AVX-512 F/VL/DQ enabled; the unaligned store writes
+            // the 8 floats of `dist`.
+            unsafe {
+                let mut dist = [0.0f32; 8];
+                _mm256_storeu_ps(dist.as_mut_ptr(), t0);
+                (_mm256_movemask_ps(entered) as u32, dist)
+            }
+        }
+
+        /// [`Avx512Ray::test`] left in registers: the entry distances and the entered lanes
+        /// (all ones).
+        #[inline(always)]
+        pub fn test_raw(&self, node: &WideNode8, tfar: f32) -> (__m256, __m256) {
             // SAFETY: only reached with AVX-512 F/VL/DQ enabled and detected. `planes` is six
             // contiguous rows of eight floats in a 64-byte aligned node, so the aligned load at
             // float `16 a` (`a < 3`) reads rows `2a` and `2a + 1`, 64 bytes at a 64-byte
-            // boundary. The unaligned store writes the 8 floats of `dist`.
+            // boundary.
             unsafe {
                 let rows = node.planes.as_ptr().cast::<f32>();
                 let mut acc = _mm512_mask_broadcastss_ps(self.tnear, 0xFF00, _mm_set_ss(tfar));
@@ -363,10 +377,7 @@ mod avx512 {
                 }
                 let t0 = _mm512_castps512_ps256(acc);
                 let t1 = _mm512_extractf32x8_ps::<1>(acc);
-                let mask = _mm256_cmp_ps_mask::<_CMP_LE_OQ>(t0, t1) as u32;
-                let mut dist = [0.0f32; 8];
-                _mm256_storeu_ps(dist.as_mut_ptr(), t0);
-                (mask, dist)
+                (t0, _mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1))
             }
         }
     }
@@ -480,13 +491,32 @@ mod avx {
             far: [usize; 3],
             tfar: f32,
         ) -> LaneHitsN<WIDTH8> {
+            let (t0, entered) = self.slabs_raw(node, near, far, tfar);
+            // SAFETY: only reached with AVX2 enabled; the unaligned store writes the 8 floats
+            // of `dist`.
+            unsafe {
+                let mut dist = [0.0f32; 8];
+                _mm256_storeu_ps(dist.as_mut_ptr(), t0);
+                (_mm256_movemask_ps(entered) as u32, dist)
+            }
+        }
+
+        /// [`Broadcast::slabs`] left in registers: the entry distances and the entered lanes
+        /// (all ones).
+        #[inline(always)]
+        fn slabs_raw(
+            &self,
+            node: &WideNode8,
+            near: [usize; 3],
+            far: [usize; 3],
+            tfar: f32,
+        ) -> (__m256, __m256) {
             debug_assert!((0..3).all(|a| near[a] / 16 == a && far[a] / 16 == a));
             debug_assert!((0..3).all(|a| near[a].is_multiple_of(8) && far[a] == near[a] ^ 8));
             // SAFETY: only reached with AVX2 enabled and detected. `planes` is six rows of
             // eight floats, contiguous, in a 64-byte aligned node; `near[a]` and `far[a]` are
             // the two rows of axis `a` (multiples of 8 below 48, as the callers make them),
-            // so each aligned load reads one whole row. The unaligned store writes the 8
-            // floats of `dist`.
+            // so each aligned load reads one whole row.
             unsafe {
                 let rows = node.planes.as_ptr().cast::<f32>();
                 let mut t0 = self.tnear;
@@ -499,10 +529,7 @@ mod avx {
                     t0 = _mm256_max_ps(tn, t0);
                     t1 = _mm256_min_ps(tf, t1);
                 }
-                let mask = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1)) as u32;
-                let mut dist = [0.0f32; 8];
-                _mm256_storeu_ps(dist.as_mut_ptr(), t0);
-                (mask, dist)
+                (t0, _mm256_cmp_ps::<_CMP_LE_OQ>(t0, t1))
             }
         }
     }
@@ -581,6 +608,13 @@ mod avx {
         pub fn test(&self, node: &WideNode8, tfar: f32) -> LaneHitsN<WIDTH8> {
             self.b.slabs(node, Self::NEAR, Self::FAR, tfar)
         }
+
+        /// [`OctRay::test`] left in registers: the entry distances and the entered lanes (all
+        /// ones), for the closest-hit walk's sorted push.
+        #[inline(always)]
+        pub fn test_raw(&self, node: &WideNode8, tfar: f32) -> (__m256, __m256) {
+            self.b.slabs_raw(node, Self::NEAR, Self::FAR, tfar)
+        }
     }
 
     /// The leaf flags (bit 31) of the eight child codes of `node`, in one instruction: the
@@ -590,6 +624,61 @@ mod avx {
         // SAFETY: only reached with AVX2 enabled; `child` is eight `u32` at byte 192 of a
         // 64-byte aligned node, so the aligned load reads exactly that row.
         unsafe { _mm256_movemask_ps(_mm256_load_ps(node.child.as_ptr().cast::<f32>())) as u32 }
+    }
+
+    /// One layer of [`sort8_desc`]: lane `i` meets lane `partner[i]` and keeps the larger
+    /// key where bit `i` of `TAKE_MAX` is set (the lower lane of each pair), else the smaller.
+    #[inline(always)]
+    fn sort_layer<const TAKE_MAX: i32>(k: __m256i, partner: __m256i) -> __m256i {
+        // SAFETY: only reached with AVX2 enabled (inlined into an AVX2 function); these
+        // intrinsics only compute on registers.
+        unsafe {
+            let p = _mm256_permutevar8x32_epi32(k, partner);
+            _mm256_blend_epi32::<TAKE_MAX>(_mm256_min_epu32(k, p), _mm256_max_epu32(k, p))
+        }
+    }
+
+    /// The eight unsigned keys of `k` in descending order, without a branch: a network of 19
+    /// comparators in six layers (the fewest of either for eight inputs), each layer one lane
+    /// permutation, a minimum, a maximum and a blend:
+    ///
+    /// ```text
+    ///   layer 1: (0,2) (1,3) (4,6) (5,7)     layer 4: (2,4) (3,5)
+    ///   layer 2: (0,4) (1,5) (2,6) (3,7)     layer 5: (1,4) (3,6)
+    ///   layer 3: (0,1) (2,3) (4,5) (6,7)     layer 6: (1,2) (3,4) (5,6)
+    /// ```
+    ///
+    /// (the larger key goes to the lower lane of each pair). Exhaustively tested on the 256
+    /// inputs of zeros and ones, which by the 0-1 principle proves it sorts every input. Only
+    /// call with AVX2 present.
+    #[inline(always)]
+    pub fn sort8_desc(k: __m256i) -> __m256i {
+        // SAFETY: only reached with AVX2 enabled; `_mm256_setr_epi32` only builds constants.
+        unsafe {
+            let k = sort_layer::<0b0011_0011>(k, _mm256_setr_epi32(2, 3, 0, 1, 6, 7, 4, 5));
+            let k = sort_layer::<0b0000_1111>(k, _mm256_setr_epi32(4, 5, 6, 7, 0, 1, 2, 3));
+            let k = sort_layer::<0b0101_0101>(k, _mm256_setr_epi32(1, 0, 3, 2, 5, 4, 7, 6));
+            let k = sort_layer::<0b0000_1100>(k, _mm256_setr_epi32(0, 1, 4, 5, 2, 3, 6, 7));
+            let k = sort_layer::<0b0000_1010>(k, _mm256_setr_epi32(0, 4, 2, 6, 1, 5, 3, 7));
+            sort_layer::<0b0010_1010>(k, _mm256_setr_epi32(0, 2, 1, 4, 3, 6, 5, 7))
+        }
+    }
+
+    /// [`sort8_desc`] on an array (for the tests).
+    #[cfg(test)]
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[target_feature(enable = "avx2")]
+    pub unsafe fn sort8_desc_array(keys: [u32; 8]) -> [u32; 8] {
+        let mut out = [0u32; 8];
+        // SAFETY: AVX2 is enabled here; the unaligned load and store read and write the 8
+        // keys of `keys` and `out`.
+        unsafe {
+            let k = _mm256_loadu_si256(keys.as_ptr().cast());
+            _mm256_storeu_si256(out.as_mut_ptr().cast(), sort8_desc(k));
+        }
+        out
     }
 
     /// One AVX2 node test (for the equality tests).
@@ -1013,6 +1102,32 @@ struct ClosestTris<'a, P, const STATS: bool> {
     found: bool,
 }
 
+impl<'a, P: PacketTest, const STATS: bool> ClosestTris<'a, P, STATS> {
+    /// No hit yet: the best distance is the ray's `tfar`.
+    #[inline(always)]
+    fn new(bvh: &'a WideBvh, r: &'a PreRay, lanes: &'a P) -> Self {
+        ClosestTris {
+            bvh,
+            r,
+            lanes,
+            best: Best {
+                t: r.tfar,
+                prim: u32::MAX,
+                u: 0.0,
+                v: 0.0,
+            },
+            found: false,
+        }
+    }
+
+    /// The best hit found.
+    #[inline(always)]
+    fn hit(&self) -> Option<Hit> {
+        let b = self.best;
+        self.found.then_some(Hit::triangle(b.t, b.prim, b.u, b.v))
+    }
+}
+
 impl<P: PacketTest, const STATS: bool> LeafVisit<f32> for ClosestTris<'_, P, STATS> {
     // Not inlined: measured, the closest-hit walk with the packet test inlined ran primary
     // rays 3-13% slower (pbrt-bathroom, stanford-dragon), the any-hit walk gains from it.
@@ -1198,7 +1313,265 @@ unsafe fn closest_oct<const O: usize, const STATS: bool>(
 ) -> Option<Hit> {
     // The ray's constants are made here, next to their use (see `prepare!`).
     let (r, l) = prepare!(ray, r => WideLanes::<avx::OctRay<O>>::new(r));
-    closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
+    let mut v = ClosestTris::<_, STATS>::new(bvh, &r, &l);
+    closest_walk_sorted::<STATS, _>(bvh, &r, &l, stats, &mut v);
+    v.hit()
+}
+
+/// Capacity of a [`SortedStack`]: the proved bound plus the seven slots past the top that a
+/// push of eight lanes writes.
+const SORTED_CAPACITY: usize = STACK_CAPACITY8 + WIDTH8 - 1;
+
+/// The stack of [`closest_walk_sorted`]: child codes and their (rounded) entry distances as
+/// two rows, so that eight of each are stored by one instruction.
+struct SortedStack {
+    codes: [MaybeUninit<u32>; SORTED_CAPACITY],
+    dists: [MaybeUninit<f32>; SORTED_CAPACITY],
+    len: usize,
+}
+
+impl SortedStack {
+    #[inline(always)]
+    fn new() -> SortedStack {
+        // SAFETY: arrays of `MaybeUninit` need no initialisation (built as in `Stack::new`).
+        unsafe {
+            SortedStack {
+                codes: MaybeUninit::<[MaybeUninit<u32>; SORTED_CAPACITY]>::uninit().assume_init(),
+                dists: MaybeUninit::<[MaybeUninit<f32>; SORTED_CAPACITY]>::uninit().assume_init(),
+                len: 0,
+            }
+        }
+    }
+
+    /// Push one entry (the scalar reference's push; bounds-checked).
+    #[inline(always)]
+    fn push(&mut self, code: u32, dist: f32) {
+        self.codes[self.len] = MaybeUninit::new(code);
+        self.dists[self.len] = MaybeUninit::new(dist);
+        self.len += 1;
+    }
+
+    #[inline(always)]
+    fn pop(&mut self) -> Option<(u32, f32)> {
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        // SAFETY: every slot below the old `len` was written by a push before being counted.
+        unsafe {
+            Some((
+                self.codes[self.len].assume_init(),
+                self.dists[self.len].assume_init(),
+            ))
+        }
+    }
+}
+
+/// The sort key of an entered child in [`closest_walk_sorted`] (0 for a child not entered):
+///
+/// ```text
+///   bit 31 ....................................... 4    3    2 1 0
+///   [ entry distance (f32 bits, >= 0), low 4 cleared ] [ 1 ] [ lane ]
+/// ```
+///
+/// Non-negative floats order as their bits do; clearing the low bits rounds the distance
+/// toward zero, so the distance a key stands for ([`key_dist`]) never exceeds the entry and
+/// culling by it never drops a child the exact distance would keep. The lane makes every key
+/// of a node distinct (equal distances: lower lane first) and names the child.
+#[inline(always)]
+fn sort_key(dist: f32, lane: usize) -> u32 {
+    (dist.to_bits() & !15) | 8 | lane as u32
+}
+
+/// The distance a [`sort_key`] stands for.
+#[inline(always)]
+fn key_dist(key: u32) -> f32 {
+    f32::from_bits(key & !15)
+}
+
+/// One node of [`closest_walk_sorted`]: test `node`'s children up to `tfar`; with one entered,
+/// return it and its entry distance; with more, push all but the nearest in descending order
+/// of [`sort_key`] (the farthest deepest) and return the nearest with its key's distance;
+/// `None` when none is entered. Every tester does exactly what the scalar reference does.
+trait SortedStep {
+    fn step(
+        &self,
+        node: &WideNode8,
+        r: &PreRay,
+        tfar: f32,
+        stack: &mut SortedStack,
+    ) -> Option<(u32, f32)>;
+}
+
+impl SortedStep for ScalarLanes {
+    #[inline(always)]
+    fn step(
+        &self,
+        node: &WideNode8,
+        r: &PreRay,
+        tfar: f32,
+        stack: &mut SortedStack,
+    ) -> Option<(u32, f32)> {
+        let (mask, dist) = node_test_scalar::<WIDTH8>(node, r, tfar);
+        match mask.count_ones() {
+            0 => None,
+            1 => {
+                let lane = mask.trailing_zeros() as usize;
+                Some((node.child[lane], dist[lane]))
+            }
+            n => {
+                let mut keys: [u32; WIDTH8] = core::array::from_fn(|i| {
+                    if mask >> i & 1 != 0 {
+                        sort_key(dist[i], i)
+                    } else {
+                        0
+                    }
+                });
+                keys.sort_unstable_by(|a, b| b.cmp(a));
+                let n = n as usize;
+                for &k in &keys[..n - 1] {
+                    stack.push(node.child[(k & 7) as usize], key_dist(k));
+                }
+                let k = keys[n - 1];
+                Some((node.child[(k & 7) as usize], key_dist(k)))
+            }
+        }
+    }
+}
+
+/// [`SortedStep`] of the 8-wide SIMD tests, from their distances and entered lanes left in
+/// registers. Only call with AVX2 present (inlined into an AVX2 function).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn sorted_step_simd(
+    node: &WideNode8,
+    (t0, entered): (core::arch::x86_64::__m256, core::arch::x86_64::__m256),
+    stack: &mut SortedStack,
+) -> Option<(u32, f32)> {
+    use core::arch::x86_64::*;
+    // SAFETY: only reached with AVX2 enabled; the intrinsics compute on registers, the
+    // aligned load reads the node's 32-byte row of child codes (byte 192 of a 64-byte aligned
+    // node), and the two unaligned stores write slots `len..len + 8` of the stack's rows, in
+    // bounds by the check before them.
+    unsafe {
+        let mask = _mm256_movemask_ps(entered) as u32;
+        if mask == 0 {
+            return None;
+        }
+        if mask & (mask - 1) == 0 {
+            let lane = mask.trailing_zeros() as usize;
+            let mut dist = [0.0f32; WIDTH8];
+            _mm256_storeu_ps(dist.as_mut_ptr(), t0);
+            return Some((node.child[lane], dist[lane]));
+        }
+        // `sort_key` on every lane, 0 where not entered.
+        let entered = _mm256_castps_si256(entered);
+        let rounded = _mm256_and_si256(_mm256_castps_si256(t0), _mm256_set1_epi32(!15));
+        let lanes = _mm256_setr_epi32(8, 9, 10, 11, 12, 13, 14, 15);
+        let keys = _mm256_and_si256(_mm256_or_si256(rounded, lanes), entered);
+        // The nearest: the smallest entered key (the others read as all ones here), by a
+        // horizontal minimum that runs beside the sort instead of after it.
+        let k = _mm256_or_si256(keys, _mm256_xor_si256(entered, _mm256_set1_epi32(-1)));
+        let k = _mm256_min_epu32(k, _mm256_shuffle_epi32::<0b10_11_00_01>(k));
+        let k = _mm256_min_epu32(k, _mm256_shuffle_epi32::<0b01_00_11_10>(k));
+        let k = _mm256_min_epu32(k, _mm256_permute2x128_si256::<1>(k, k));
+        let nearest = _mm256_cvtsi256_si32(k) as u32;
+        let sorted = avx::sort8_desc(keys);
+        let order = _mm256_and_si256(sorted, _mm256_set1_epi32(7));
+        let children = _mm256_load_si256(node.child.as_ptr().cast());
+        let len = stack.len;
+        assert!(len + WIDTH8 <= SORTED_CAPACITY, "traversal stack overflow");
+        _mm256_storeu_si256(
+            stack.codes.as_mut_ptr().add(len).cast(),
+            _mm256_permutevar8x32_epi32(children, order),
+        );
+        _mm256_storeu_si256(
+            stack.dists.as_mut_ptr().add(len).cast(),
+            _mm256_and_si256(sorted, _mm256_set1_epi32(!15)),
+        );
+        stack.len = len + mask.count_ones() as usize - 1;
+        Some((node.child[(nearest & 7) as usize], key_dist(nearest)))
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl<const O: usize> SortedStep for WideLanes<avx::OctRay<O>> {
+    #[inline(always)]
+    fn step(
+        &self,
+        node: &WideNode8,
+        _: &PreRay,
+        tfar: f32,
+        stack: &mut SortedStack,
+    ) -> Option<(u32, f32)> {
+        sorted_step_simd(node, self.0.test_raw(node, tfar), stack)
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl SortedStep for Avx512Lanes {
+    #[inline(always)]
+    fn step(
+        &self,
+        node: &WideNode8,
+        _: &PreRay,
+        tfar: f32,
+        stack: &mut SortedStack,
+    ) -> Option<(u32, f32)> {
+        sorted_step_simd(node, self.0.test_raw(node, tfar), stack)
+    }
+}
+
+/// The closest-hit walk of the 8-wide tree (AVX2 octant kernels, AVX-512, and their scalar
+/// reference): every entered child, leaf or inner node, goes through one stack in order of
+/// entry distance ([`sort_key`]), sorted without a branch by the SIMD kernels
+/// ([`avx::sort8_desc`] on the eight keys, the child codes permuted alike, both rows stored
+/// whole at the top of the stack, which then grows by the number entered minus one). The
+/// nearest child is visited next; one entered child, the common case, is followed without
+/// sorting. A popped entry is skipped when its distance exceeds the best hit so far (with the
+/// rounding slack); a leaf is tested where it is popped.
+///
+/// Measured against the walk it replaced (leaves tested where entered, nearest first, before
+/// the inner children, which were sorted by insertion), alternating runs, 8-wide quality
+/// trees: primary rays 1.063x on pbrt-bathroom, 1.047x on sionna-san-francisco, 1.006x on
+/// stanford-dragon; bounce rays 1.25x (pbrt-bathroom), 1.06x (stanford-dragon); triangle
+/// tests per primary ray 5.78 -> 4.97 on pbrt-bathroom (leaves now wait behind nearer inner
+/// nodes), node tests unchanged. Branch-simulated (cachegrind), the old walk mispredicted
+/// about 4.6 branches per primary ray, most on how many children and leaves were entered.
+/// Every node through the sort (no one-child shortcut): 0.89x. Fetching the second nearest's
+/// lines ahead: no gain.
+#[inline(always)]
+fn closest_walk_sorted<const STATS: bool, S: SortedStep>(
+    bvh: &WideBvh,
+    r: &PreRay,
+    lanes: &S,
+    stats: &mut TraceStats,
+    leaf: &mut impl LeafVisit<f32>,
+) {
+    let nodes = &bvh.nodes8[..];
+    let abs = abs_slack(bvh, r);
+    let mut cull = slack(r.tfar, abs);
+    let mut stack = SortedStack::new();
+    let (mut code, mut d) = (0u32, r.tnear);
+    loop {
+        if d <= cull {
+            if code & LEAF != 0 {
+                cull = slack(leaf.visit(code, stats), abs);
+            } else {
+                if STATS {
+                    stats.node_tests += 1;
+                }
+                if let Some(next) = lanes.step(&nodes[code as usize], r, cull, &mut stack) {
+                    (code, d) = next;
+                    continue;
+                }
+            }
+        }
+        match stack.pop() {
+            Some(next) => (code, d) = next,
+            None => return,
+        }
+    }
 }
 
 /// [`closest`] with the AVX2 node test of the ray's octant: one kernel per octant, whose
@@ -1543,7 +1916,9 @@ unsafe fn closest_avx512<const STATS: bool>(
     stats: &mut TraceStats,
 ) -> Option<Hit> {
     let (r, l) = prepare!(ray, r => Avx512Lanes::new(r));
-    closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
+    let mut v = ClosestTris::<_, STATS>::new(bvh, &r, &l);
+    closest_walk_sorted::<STATS, _>(bvh, &r, &l, stats, &mut v);
+    v.hit()
 }
 
 /// [`closest`] on the 4-wide tree with the SSE node test.
@@ -1563,6 +1938,12 @@ fn closest_scalar<const W: usize, const STATS: bool>(
     stats: &mut TraceStats,
 ) -> Option<Hit> {
     let r = PreRay::new(ray);
+    if W == WIDTH8 {
+        // The reference of the 8-wide kernels walks as they do (see `closest_walk_sorted`).
+        let mut v = ClosestTris::<_, STATS>::new(bvh, &r, &ScalarLanes);
+        closest_walk_sorted::<STATS, _>(bvh, &r, &ScalarLanes, stats, &mut v);
+        return v.hit();
+    }
     closest_in::<W, STATS, _>(bvh, nodes, &r, &ScalarLanes, stats)
 }
 
@@ -1594,21 +1975,9 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     lanes: &L,
     stats: &mut TraceStats,
 ) -> Option<Hit> {
-    let mut v = ClosestTris::<L, STATS> {
-        bvh,
-        r,
-        lanes,
-        best: Best {
-            t: r.tfar,
-            prim: u32::MAX,
-            u: 0.0,
-            v: 0.0,
-        },
-        found: false,
-    };
+    let mut v = ClosestTris::<L, STATS>::new(bvh, r, lanes);
     closest_walk::<W, STATS, L>(bvh, nodes, r, lanes, stats, &mut v);
-    let b = v.best;
-    v.found.then_some(Hit::triangle(b.t, b.prim, b.u, b.v))
+    v.hit()
 }
 
 /// The items of box-tree leaf `code` (see [`closest_items`]) whose boxes the ray enters
@@ -2066,4 +2435,42 @@ fn occluded_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
         }
     }
     false
+}
+
+#[cfg(test)]
+mod tests {
+    /// The sorted push's network orders every input: exhaustively on zeros and ones (the 0-1
+    /// principle makes that a proof for all inputs), and on random keys with repeats.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn sort8_desc_sorts() {
+        if !super::avx2_available() {
+            eprintln!("skipped: this CPU has no AVX2");
+            return;
+        }
+        let check = |keys: [u32; 8]| {
+            let mut want = keys;
+            want.sort_unstable_by(|a, b| b.cmp(a));
+            // SAFETY: AVX2 was detected above.
+            let got = unsafe { super::avx::sort8_desc_array(keys) };
+            assert_eq!(got, want, "{keys:?}");
+        };
+        for bits in 0u32..256 {
+            check(core::array::from_fn(|i| bits >> i & 1));
+        }
+        let mut x = 0x9e37_79b9_7f4a_7c15u64;
+        for _ in 0..20_000 {
+            check(core::array::from_fn(|_| {
+                x ^= x << 13;
+                x ^= x >> 7;
+                x ^= x << 17;
+                // Few distinct values (repeats) half the time, full range otherwise.
+                if x >> 63 == 0 {
+                    (x >> 8) as u32 & 7
+                } else {
+                    (x >> 16) as u32
+                }
+            }));
+        }
+    }
 }
