@@ -566,6 +566,12 @@ mod avx {
         pub fn test(&self, node: &WideNode8, tfar: f32) -> LaneHitsN<WIDTH8> {
             self.b.slabs(node, self.near, self.far, tfar)
         }
+
+        /// [`AvxRay::test`] left in registers: entry distances, entered lanes (all ones).
+        #[inline(always)]
+        pub fn test_raw(&self, node: &WideNode8, tfar: f32) -> (__m256, __m256) {
+            self.b.slabs_raw(node, self.near, self.far, tfar)
+        }
     }
 
     /// The AVX2 node test of the rays of one octant `O` (bit `a` set: the direction's sign
@@ -1072,6 +1078,22 @@ trait Lanes<const W: usize>: PacketTest {
     fn leaves(&self, node: &WideNodeN<W>) -> u32 {
         leaf_mask(node)
     }
+
+    /// The closest-hit walk of this tester over `nodes` (the tree of width `W` in `bvh`):
+    /// [`closest_walk`]; the 8-wide testers take [`closest_walk_sorted`].
+    #[inline(always)]
+    fn closest_walk<const STATS: bool>(
+        &self,
+        bvh: &WideBvh,
+        nodes: &[WideNodeN<W>],
+        r: &PreRay,
+        stats: &mut TraceStats,
+        leaf: &mut impl LeafVisit<f32>,
+    ) where
+        Self: Sized,
+    {
+        closest_walk::<W, STATS, Self>(bvh, nodes, r, self, stats, leaf)
+    }
 }
 
 /// What a walk does at a leaf it enters: test the leaf's primitives, and say how the walk
@@ -1211,6 +1233,23 @@ impl<const W: usize> Lanes<W> for ScalarLanes {
     fn test(&self, node: &WideNodeN<W>, r: &PreRay, tfar: f32) -> LaneHitsN<W> {
         node_test_scalar(node, r, tfar)
     }
+
+    /// On the 8-wide tree the reference of the 8-wide kernels walks as they do.
+    #[inline(always)]
+    fn closest_walk<const STATS: bool>(
+        &self,
+        bvh: &WideBvh,
+        nodes: &[WideNodeN<W>],
+        r: &PreRay,
+        stats: &mut TraceStats,
+        leaf: &mut impl LeafVisit<f32>,
+    ) {
+        if W == WIDTH8 {
+            closest_walk_sorted::<STATS, _>(bvh, r, self, stats, leaf)
+        } else {
+            closest_walk::<W, STATS, Self>(bvh, nodes, r, self, stats, leaf)
+        }
+    }
 }
 
 impl PacketTest for ScalarLanes {
@@ -1251,6 +1290,12 @@ trait WideRay {
     fn low_org_tnear(&self) -> ([core::arch::x86_64::__m128; 3], core::arch::x86_64::__m128);
     /// The eight slab tests of `node` up to `tfar`.
     fn test(&self, node: &WideNode8, tfar: f32) -> LaneHitsN<WIDTH8>;
+    /// [`WideRay::test`] left in registers: entry distances, entered lanes (all ones).
+    fn test_raw(
+        &self,
+        node: &WideNode8,
+        tfar: f32,
+    ) -> (core::arch::x86_64::__m256, core::arch::x86_64::__m256);
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -1270,6 +1315,14 @@ macro_rules! wide_ray {
             #[inline(always)]
             fn test(&self, node: &WideNode8, tfar: f32) -> LaneHitsN<WIDTH8> {
                 <$t>::test(self, node, tfar)
+            }
+            #[inline(always)]
+            fn test_raw(
+                &self,
+                node: &WideNode8,
+                tfar: f32,
+            ) -> (core::arch::x86_64::__m256, core::arch::x86_64::__m256) {
+                <$t>::test_raw(self, node, tfar)
             }
         }
     };
@@ -1329,9 +1382,7 @@ unsafe fn closest_oct<const O: usize, const STATS: bool>(
 ) -> Option<Hit> {
     // The ray's constants are made here, next to their use (see `prepare!`).
     let (r, l) = prepare!(ray, r => WideLanes::<avx::OctRay<O>>::new(r));
-    let mut v = ClosestTris::<_, STATS>::new(bvh, &r, &l);
-    closest_walk_sorted::<STATS, _>(bvh, &r, &l, stats, &mut v);
-    v.hit()
+    closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
 }
 
 /// Capacity of a [`SortedStack`]: the proved bound plus the seven slots past the top that a
@@ -1511,7 +1562,7 @@ fn sorted_step_simd(
 }
 
 #[cfg(target_arch = "x86_64")]
-impl<const O: usize> SortedStep for WideLanes<avx::OctRay<O>> {
+impl<T: WideRay> SortedStep for WideLanes<T> {
     #[inline(always)]
     fn step(
         &self,
@@ -1524,22 +1575,8 @@ impl<const O: usize> SortedStep for WideLanes<avx::OctRay<O>> {
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-impl SortedStep for Avx512Lanes {
-    #[inline(always)]
-    fn step(
-        &self,
-        node: &WideNode8,
-        _: &PreRay,
-        tfar: f32,
-        stack: &mut SortedStack,
-    ) -> Option<(u32, f32)> {
-        sorted_step_simd(node, self.0.test_raw(node, tfar), stack)
-    }
-}
-
-/// The closest-hit walk of the 8-wide tree (AVX2 octant kernels, AVX-512, and their scalar
-/// reference): every entered child, leaf or inner node, goes through one stack in order of
+/// The closest-hit walk of the 8-wide tree, of triangles or of items (AVX2, AVX-512, and
+/// their scalar reference; chosen by [`Lanes::closest_walk`]): every entered child, leaf or inner node, goes through one stack in order of
 /// entry distance ([`sort_key`]), sorted without a branch by the SIMD kernels
 /// ([`avx::sort8_desc`] on the eight keys, the child codes permuted alike, both rows stored
 /// whole at the top of the stack, which then grows by the number entered minus one). The
@@ -1647,6 +1684,18 @@ impl<T: WideRay> Lanes<WIDTH8> for WideLanes<T> {
     #[inline(always)]
     fn leaves(&self, node: &WideNode8) -> u32 {
         avx::leaf_mask(node)
+    }
+
+    #[inline(always)]
+    fn closest_walk<const STATS: bool>(
+        &self,
+        bvh: &WideBvh,
+        _: &[WideNode8],
+        r: &PreRay,
+        stats: &mut TraceStats,
+        leaf: &mut impl LeafVisit<f32>,
+    ) {
+        closest_walk_sorted::<STATS, _>(bvh, r, self, stats, leaf)
     }
 }
 
@@ -1932,9 +1981,7 @@ unsafe fn closest_avx512<const STATS: bool>(
     stats: &mut TraceStats,
 ) -> Option<Hit> {
     let (r, l) = prepare!(ray, r => Avx512Lanes::new(r));
-    let mut v = ClosestTris::<_, STATS>::new(bvh, &r, &l);
-    closest_walk_sorted::<STATS, _>(bvh, &r, &l, stats, &mut v);
-    v.hit()
+    closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
 }
 
 /// [`closest`] on the 4-wide tree with the SSE node test.
@@ -1954,12 +2001,6 @@ fn closest_scalar<const W: usize, const STATS: bool>(
     stats: &mut TraceStats,
 ) -> Option<Hit> {
     let r = PreRay::new(ray);
-    if W == WIDTH8 {
-        // The reference of the 8-wide kernels walks as they do (see `closest_walk_sorted`).
-        let mut v = ClosestTris::<_, STATS>::new(bvh, &r, &ScalarLanes);
-        closest_walk_sorted::<STATS, _>(bvh, &r, &ScalarLanes, stats, &mut v);
-        return v.hit();
-    }
     closest_in::<W, STATS, _>(bvh, nodes, &r, &ScalarLanes, stats)
 }
 
@@ -1992,7 +2033,7 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     stats: &mut TraceStats,
 ) -> Option<Hit> {
     let mut v = ClosestTris::<L, STATS>::new(bvh, r, lanes);
-    closest_walk::<W, STATS, L>(bvh, nodes, r, lanes, stats, &mut v);
+    lanes.closest_walk::<STATS>(bvh, nodes, r, stats, &mut v);
     v.hit()
 }
 
@@ -2154,7 +2195,7 @@ fn closest_items_in<const W: usize, L: Lanes<W>>(
         best
     });
     let stats = &mut TraceStats::default();
-    closest_walk::<W, false, L>(bvh, nodes, r, lanes, stats, &mut leaf);
+    lanes.closest_walk::<false>(bvh, nodes, r, stats, &mut leaf);
 }
 
 /// The closest-hit walk over one tree: children nearest first, a node skipped when its entry
