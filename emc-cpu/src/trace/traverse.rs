@@ -1097,6 +1097,23 @@ trait Lanes<const W: usize>: PacketTest {
     {
         closest_walk::<W, STATS, Self>(bvh, nodes, r, self, stats, leaf)
     }
+
+    /// The any-hit walk of this tester over `nodes`: [`occluded_walk`]; the 8-wide SIMD
+    /// testers take [`occluded_walk_compact`], which visits in the same order.
+    #[inline(always)]
+    fn occluded_walk<const STATS: bool>(
+        &self,
+        bvh: &WideBvh,
+        nodes: &[WideNodeN<W>],
+        r: &PreRay,
+        stats: &mut TraceStats,
+        leaf: &mut impl LeafVisit<bool>,
+    ) -> bool
+    where
+        Self: Sized,
+    {
+        occluded_walk::<W, STATS, Self>(bvh, nodes, r, self, stats, leaf)
+    }
 }
 
 /// What a walk does at a leaf it enters: test the leaf's primitives, and say how the walk
@@ -1435,6 +1452,18 @@ impl SortedStack {
             ))
         }
     }
+
+    /// Pop a code alone (the any-hit walk pushes no distances).
+    #[inline(always)]
+    fn pop_code(&mut self) -> Option<u32> {
+        if self.len == 0 {
+            return None;
+        }
+        self.len -= 1;
+        // SAFETY: every code slot below the old `len` was written by a push before being
+        // counted.
+        Some(unsafe { self.codes[self.len].assume_init() })
+    }
 }
 
 /// The sort key of an entered child in [`closest_walk_sorted`] (0 for a child not entered):
@@ -1699,6 +1728,18 @@ impl<T: WideRay> Lanes<WIDTH8> for WideLanes<T> {
         leaf: &mut impl LeafVisit<f32>,
     ) {
         closest_walk_sorted::<STATS, _>(bvh, r, self, stats, leaf)
+    }
+
+    #[inline(always)]
+    fn occluded_walk<const STATS: bool>(
+        &self,
+        bvh: &WideBvh,
+        _: &[WideNode8],
+        r: &PreRay,
+        stats: &mut TraceStats,
+        leaf: &mut impl LeafVisit<bool>,
+    ) -> bool {
+        occluded_walk_compact::<STATS, T>(bvh, r, self, stats, leaf)
     }
 }
 
@@ -2377,7 +2418,7 @@ fn occluded_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     stats: &mut TraceStats,
 ) -> bool {
     let mut v = OccludedTris::<L, STATS> { bvh, r, lanes };
-    occluded_walk::<W, STATS, L>(bvh, nodes, r, lanes, stats, &mut v)
+    lanes.occluded_walk::<STATS>(bvh, nodes, r, stats, &mut v)
 }
 
 /// True when `visit(id)` is true for an item of the box tree `bvh` whose box the ray enters
@@ -2431,7 +2472,7 @@ fn occluded_items_in<const W: usize, L: Lanes<W>>(
         hit
     });
     let stats = &mut TraceStats::default();
-    occluded_walk::<W, false, L>(bvh, nodes, r, lanes, stats, &mut leaf)
+    lanes.occluded_walk::<false>(bvh, nodes, r, stats, &mut leaf)
 }
 
 /// The any-hit walk over one tree: `leaf(code, stats)` is true when leaf `code` holds a hit,
@@ -2488,6 +2529,106 @@ fn occluded_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
         }
     }
     false
+}
+
+/// Lanes of each 8-bit mask in ascending order, one per byte (the rest 0): the index row
+/// that packs a node's chosen children to the front of a vector, for
+/// [`occluded_walk_compact`]'s push (2 KiB, kept in the first-level cache by use).
+#[cfg(target_arch = "x86_64")]
+const COMPACT: [u64; 256] = {
+    let mut t = [0u64; 256];
+    let mut m = 0;
+    while m < 256 {
+        let (mut row, mut n, mut lane) = (0u64, 0, 0);
+        while lane < 8 {
+            if m >> lane & 1 != 0 {
+                row |= (lane as u64) << (8 * n);
+                n += 1;
+            }
+            lane += 1;
+        }
+        t[m] = row;
+        m += 1;
+    }
+    t
+};
+
+/// [`occluded_walk`] of the 8-wide SIMD testers, in the same order (entered leaves tested at
+/// once in lane order, then the entered inner children from the highest lane down), with
+/// fewer data-dependent branches: the highest inner child is visited next and fetched while
+/// the leaves are tested; the others go on the stack by one eight-lane store of the child row
+/// permuted by [`COMPACT`] (lowest lane deepest), the stack growing by their number. The loop
+/// over every entered lane it replaces mispredicted about four branches per AO ray
+/// (cachegrind's branch model); measured, AO rays, alternating runs: 1.050x on pbrt-bathroom,
+/// 1.048x on sionna-san-francisco, 1.060x on stanford-dragon (also fetching each pushed child:
+/// 1.00-1.04x).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn occluded_walk_compact<const STATS: bool, T: WideRay>(
+    bvh: &WideBvh,
+    r: &PreRay,
+    lanes: &WideLanes<T>,
+    stats: &mut TraceStats,
+    leaf: &mut impl LeafVisit<bool>,
+) -> bool {
+    use core::arch::x86_64::*;
+    let nodes = &bvh.nodes8[..];
+    let cull = slack(r.tfar, abs_slack(bvh, r));
+    let mut stack = SortedStack::new();
+    // Node 0 is the root, an inner node (a leaf root is a child of it); only inner nodes
+    // travel, leaves are tested where they are entered.
+    let mut code = 0u32;
+    loop {
+        let node = &nodes[code as usize];
+        if STATS {
+            stats.node_tests += 1;
+        }
+        // The leaf flags first: their load does not wait for the test.
+        let lm = lanes.leaves(node);
+        let (mask, _) = lanes.test(node, r, cull);
+        let inner = mask & !lm;
+        let mut next = None;
+        if inner != 0 {
+            let top = 31 - inner.leading_zeros();
+            let rest = inner & !(1 << top);
+            let child = node.child[top as usize];
+            prefetch(&nodes[child as usize], core::mem::size_of::<WideNode8>());
+            next = Some(child);
+            if rest != 0 {
+                let len = stack.len;
+                assert!(len + WIDTH8 <= SORTED_CAPACITY, "traversal stack overflow");
+                // SAFETY: only reached with AVX2 enabled (the 8-wide SIMD kernels); the
+                // aligned load reads the node's 32-byte child row (byte 192 of a 64-byte
+                // aligned node), the unaligned store writes slots `len..len + 8` of the code
+                // row, in bounds by the check above.
+                unsafe {
+                    let order =
+                        _mm256_cvtepu8_epi32(_mm_cvtsi64_si128(COMPACT[rest as usize] as i64));
+                    let children = _mm256_load_si256(node.child.as_ptr().cast());
+                    _mm256_storeu_si256(
+                        stack.codes.as_mut_ptr().add(len).cast(),
+                        _mm256_permutevar8x32_epi32(children, order),
+                    );
+                }
+                stack.len = len + rest.count_ones() as usize;
+            }
+        }
+        let mut m = mask & lm;
+        while m != 0 {
+            let lane = m.trailing_zeros() as usize;
+            m &= m - 1;
+            if leaf.visit_inlined(node.child[lane], stats) {
+                return true;
+            }
+        }
+        code = match next {
+            Some(child) => child,
+            None => match stack.pop_code() {
+                Some(child) => child,
+                None => return false,
+            },
+        };
+    }
 }
 
 #[cfg(test)]
