@@ -1405,32 +1405,35 @@ unsafe fn closest_oct<const O: usize, const STATS: bool>(
     closest_in::<WIDTH8, STATS, _>(bvh, &bvh.nodes8, &r, &l, stats)
 }
 
-/// Capacity of a [`SortedStack`]: the proved bound plus the seven slots past the top that a
-/// push of eight lanes writes.
-const SORTED_CAPACITY: usize = STACK_CAPACITY8 + WIDTH8 - 1;
+/// Capacity of a [`Stack`]: the bound [`WideBvh::from_bvh2`] proved for either tree, plus the
+/// seven slots past the top that a push of eight lanes writes.
+const STACK_ROWS: usize = STACK_CAPACITY8 + WIDTH8 - 1;
 
-/// The stack of [`closest_walk_sorted`]: child codes and their (rounded) entry distances as
-/// two rows, so that eight of each are stored by one instruction.
-struct SortedStack {
-    codes: [MaybeUninit<u32>; SORTED_CAPACITY],
-    dists: [MaybeUninit<f32>; SORTED_CAPACITY],
+/// The traversal stack of every walk: child codes and their entry distances as two rows, so
+/// that the 8-wide walks store eight of either by one instruction.
+struct Stack {
+    codes: [MaybeUninit<u32>; STACK_ROWS],
+    dists: [MaybeUninit<f32>; STACK_ROWS],
     len: usize,
 }
 
-impl SortedStack {
+impl Stack {
     #[inline(always)]
-    fn new() -> SortedStack {
-        // SAFETY: arrays of `MaybeUninit` need no initialisation (built as in `Stack::new`).
+    fn new() -> Stack {
+        // SAFETY: arrays of `MaybeUninit` need no initialisation. (Built this way, not as
+        // `[MaybeUninit::uninit(); N]`, which the compiler was seen to zero with a memset of
+        // the whole stack on every ray.)
         unsafe {
-            SortedStack {
-                codes: MaybeUninit::<[MaybeUninit<u32>; SORTED_CAPACITY]>::uninit().assume_init(),
-                dists: MaybeUninit::<[MaybeUninit<f32>; SORTED_CAPACITY]>::uninit().assume_init(),
+            Stack {
+                codes: MaybeUninit::<[MaybeUninit<u32>; STACK_ROWS]>::uninit().assume_init(),
+                dists: MaybeUninit::<[MaybeUninit<f32>; STACK_ROWS]>::uninit().assume_init(),
                 len: 0,
             }
         }
     }
 
-    /// Push one entry (the scalar reference's push; bounds-checked).
+    /// Push one entry. Never fails on a tree from `from_bvh2` (depth ≤ MAX_DEPTH); the slots
+    /// are bounds-checked regardless, so a broken invariant panics instead of corrupting.
     #[inline(always)]
     fn push(&mut self, code: u32, dist: f32) {
         self.codes[self.len] = MaybeUninit::new(code);
@@ -1498,7 +1501,7 @@ trait SortedStep {
         node: &WideNode8,
         r: &PreRay,
         tfar: f32,
-        stack: &mut SortedStack,
+        stack: &mut Stack,
     ) -> Option<(u32, f32)>;
 }
 
@@ -1509,7 +1512,7 @@ impl SortedStep for ScalarLanes {
         node: &WideNode8,
         r: &PreRay,
         tfar: f32,
-        stack: &mut SortedStack,
+        stack: &mut Stack,
     ) -> Option<(u32, f32)> {
         let (mask, dist) = node_test_scalar::<WIDTH8>(node, r, tfar);
         match mask.count_ones() {
@@ -1545,7 +1548,7 @@ impl SortedStep for ScalarLanes {
 fn sorted_step_simd(
     node: &WideNode8,
     (t0, entered): (core::arch::x86_64::__m256, core::arch::x86_64::__m256),
-    stack: &mut SortedStack,
+    stack: &mut Stack,
 ) -> Option<(u32, f32)> {
     use core::arch::x86_64::*;
     // SAFETY: only reached with AVX2 enabled; the intrinsics compute on registers, the
@@ -1579,7 +1582,7 @@ fn sorted_step_simd(
         let order = _mm256_and_si256(sorted, _mm256_set1_epi32(7));
         let children = _mm256_load_si256(node.child.as_ptr().cast());
         let len = stack.len;
-        assert!(len + WIDTH8 <= SORTED_CAPACITY, "traversal stack overflow");
+        assert!(len + WIDTH8 <= STACK_ROWS, "traversal stack overflow");
         _mm256_storeu_si256(
             stack.codes.as_mut_ptr().add(len).cast(),
             _mm256_permutevar8x32_epi32(children, order),
@@ -1601,7 +1604,7 @@ impl<T: WideRay> SortedStep for WideLanes<T> {
         node: &WideNode8,
         _: &PreRay,
         tfar: f32,
-        stack: &mut SortedStack,
+        stack: &mut Stack,
     ) -> Option<(u32, f32)> {
         sorted_step_simd(node, self.0.test_raw(node, tfar), stack)
     }
@@ -1636,7 +1639,7 @@ fn closest_walk_sorted<const STATS: bool, S: SortedStep>(
     let nodes = &bvh.nodes8[..];
     let abs = abs_slack(bvh, r);
     let mut cull = slack(r.tfar, abs);
-    let mut stack = SortedStack::new();
+    let mut stack = Stack::new();
     let (mut code, mut d) = (0u32, r.tnear);
     loop {
         if d <= cull {
@@ -1773,44 +1776,6 @@ pub(crate) fn prefetch<T>(x: &T, bytes: usize) {
     let _ = (x, bytes);
 }
 
-/// A fixed-capacity stack of `(child code, entry distance)`; its capacity is the bound
-/// [`WideBvh::from_bvh2`] proved for either tree.
-struct Stack {
-    items: [MaybeUninit<(u32, f32)>; STACK_CAPACITY8],
-    len: usize,
-}
-
-impl Stack {
-    #[inline(always)]
-    fn new() -> Stack {
-        // SAFETY: an array of `MaybeUninit` needs no initialisation. (Built this way, not as
-        // `[MaybeUninit::uninit(); N]`, which the compiler was seen to zero with a memset of
-        // the whole stack on every ray.)
-        let items = unsafe {
-            MaybeUninit::<[MaybeUninit<(u32, f32)>; STACK_CAPACITY8]>::uninit().assume_init()
-        };
-        Stack { items, len: 0 }
-    }
-
-    #[inline(always)]
-    fn push(&mut self, e: (u32, f32)) {
-        // Never fails on a tree from `from_bvh2` (depth ≤ MAX_DEPTH); `items[len]` is
-        // bounds-checked regardless, so a broken invariant panics instead of corrupting.
-        self.items[self.len] = MaybeUninit::new(e);
-        self.len += 1;
-    }
-
-    #[inline(always)]
-    fn pop(&mut self) -> Option<(u32, f32)> {
-        if self.len == 0 {
-            return None;
-        }
-        self.len -= 1;
-        // SAFETY: every slot below the old `len` was written by `push` before being counted.
-        Some(unsafe { self.items[self.len].assume_init() })
-    }
-}
-
 /// Bit `i` set when child `i` of `node` is a leaf (or unused: never entered), from the flag
 /// bits of the child codes, without a branch per lane.
 #[inline(always)]
@@ -1847,7 +1812,7 @@ fn push_ordered<const W: usize>(
             (node.child[second], dist[second]),
         );
         let (near, far) = if b.1 < a.1 { (b, a) } else { (a, b) };
-        stack.push(far);
+        stack.push(far.0, far.1);
         return Some(near);
     }
     let mut e = [(0u32, 0.0f32); W];
@@ -1869,8 +1834,8 @@ fn push_ordered<const W: usize>(
     if n == 0 {
         return None;
     }
-    for &x in &e[..n - 1] {
-        stack.push(x);
+    for &(code, dist) in &e[..n - 1] {
+        stack.push(code, dist);
     }
     Some(e[n - 1])
 }
@@ -2489,7 +2454,7 @@ fn occluded_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
     let abs = abs_slack(bvh, r);
     let cull = slack(r.tfar, abs);
     let mut stack = Stack::new();
-    stack.push((0, r.tnear));
+    stack.push(0, r.tnear);
     while let Some((code, _)) = stack.pop() {
         if code & LEAF != 0 {
             if leaf.visit(code, stats) {
@@ -2523,7 +2488,7 @@ fn occluded_walk<const W: usize, const STATS: bool, L: Lanes<W>>(
                     // whose branches mispredicted about 4 times per ray; no fetch at all:
                     // 1.034x and 1.01x.)
                     prefetch(&nodes[child as usize], core::mem::size_of::<WideNodeN<W>>());
-                    stack.push((child, 0.0));
+                    stack.push(child, 0.0);
                 }
             }
         }
@@ -2574,7 +2539,7 @@ fn occluded_walk_compact<const STATS: bool, T: WideRay>(
     use core::arch::x86_64::*;
     let nodes = &bvh.nodes8[..];
     let cull = slack(r.tfar, abs_slack(bvh, r));
-    let mut stack = SortedStack::new();
+    let mut stack = Stack::new();
     // Node 0 is the root, an inner node (a leaf root is a child of it); only inner nodes
     // travel, leaves are tested where they are entered.
     let mut code = 0u32;
@@ -2596,7 +2561,7 @@ fn occluded_walk_compact<const STATS: bool, T: WideRay>(
             next = Some(child);
             if rest != 0 {
                 let len = stack.len;
-                assert!(len + WIDTH8 <= SORTED_CAPACITY, "traversal stack overflow");
+                assert!(len + WIDTH8 <= STACK_ROWS, "traversal stack overflow");
                 // SAFETY: only reached with AVX2 enabled (the 8-wide SIMD kernels); the
                 // aligned load reads the node's 32-byte child row (byte 192 of a 64-byte
                 // aligned node), the unaligned store writes slots `len..len + 8` of the code
