@@ -1496,6 +1496,7 @@ fn key_dist(key: u32) -> f32 {
 /// of [`sort_key`] (the farthest deepest) and return the nearest with its key's distance;
 /// `None` when none is entered. Every tester does exactly what the scalar reference does.
 trait SortedStep {
+    /// The step at `node` (see the trait).
     fn step(
         &self,
         node: &WideNode8,
@@ -1611,13 +1612,14 @@ impl<T: WideRay> SortedStep for WideLanes<T> {
 }
 
 /// The closest-hit walk of the 8-wide tree, of triangles or of items (AVX2, AVX-512, and
-/// their scalar reference; chosen by [`Lanes::closest_walk`]): every entered child, leaf or inner node, goes through one stack in order of
-/// entry distance ([`sort_key`]), sorted without a branch by the SIMD kernels
-/// ([`avx::sort8_desc`] on the eight keys, the child codes permuted alike, both rows stored
-/// whole at the top of the stack, which then grows by the number entered minus one). The
-/// nearest child is visited next; one entered child, the common case, is followed without
-/// sorting. A popped entry is skipped when its distance exceeds the best hit so far (with the
-/// rounding slack); a leaf is tested where it is popped.
+/// their scalar reference; chosen by [`Lanes::closest_walk`]): every entered child, leaf or
+/// inner node, goes through one stack in order of entry distance ([`sort_key`]), sorted
+/// without a branch by the SIMD kernels ([`avx::sort8_desc`] on the eight keys, the child
+/// codes permuted alike, both rows stored whole at the top of the stack, which then grows by
+/// the number entered minus one). The nearest child is visited next; one entered child, the
+/// common case, is followed without sorting. A popped entry is skipped when its distance
+/// exceeds the best hit so far (with the rounding slack); a leaf is tested where it is popped,
+/// its test inlined here (see `ClosestTris`).
 ///
 /// Measured against the walk it replaced (leaves tested where entered, nearest first, before
 /// the inner children, which were sorted by insertion), alternating runs, 8-wide quality
