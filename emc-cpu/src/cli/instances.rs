@@ -34,6 +34,10 @@ pub struct InstanceRow {
     pub mrays: [f64; 2],
     /// Primary hits, AO rays, AO occluded.
     pub counts: [u64; 3],
+    /// For a peer: emc's occluded count on this peer's own AO rays (each tracer's AO rays
+    /// start at its own primary hits, whose last bits differ between tracers under an
+    /// instance's transform; on the same rays the counts must agree).
+    pub emc_on_these_rays: Option<u64>,
     /// Bytes of the top level and its instances.
     pub memory: u64,
 }
@@ -150,6 +154,7 @@ fn scene_instances(
         commit_ms: median(commits),
         mrays: [0.0; 2],
         counts: [0; 3],
+        emc_on_these_rays: None,
         memory: scene.memory_bytes() as u64,
     }];
     eprintln!(
@@ -194,6 +199,7 @@ fn scene_instances(
                 commit_ms: median(commits),
                 mrays: [0.0; 2],
                 counts: [0; 3],
+                emc_on_these_rays: None,
                 memory: s.memory_bytes().max(0) as u64,
             };
             eprintln!(
@@ -232,6 +238,9 @@ fn scene_instances(
         }
         let rays = harness_ao_rays_by(&primary, &hits, tri_of, frame.diag);
         let (occ, _) = t.occluded(&rays, threads);
+        if k > 0 {
+            rows[k].emc_on_these_rays = Some(tracers[0].occluded(&rays, threads).0);
+        }
         rows[k].counts = [
             hits.iter().filter(|h| h.is_some()).count() as u64,
             rays.len() as u64,
@@ -320,5 +329,13 @@ fn summary(rows: &[InstanceRow]) {
             p.counts[2],
             d(emc.counts[2], p.counts[2]),
         );
+        if let Some(same) = p.emc_on_these_rays {
+            println!(
+                "  on {}'s own AO rays emc finds {} occluded ({:.3}%)",
+                p.name,
+                same,
+                d(same, p.counts[2])
+            );
+        }
     }
 }
