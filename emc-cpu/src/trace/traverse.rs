@@ -347,14 +347,7 @@ mod avx512 {
         /// as `max_sse`/`min_sse` do).
         #[inline(always)]
         pub fn test(&self, node: &WideNode8, tfar: f32) -> LaneHitsN<WIDTH8> {
-            let (t0, entered) = self.test_raw(node, tfar);
-            // SAFETY: only reached with AVX-512 F/VL/DQ enabled; the unaligned store writes
-            // the 8 floats of `dist`.
-            unsafe {
-                let mut dist = [0.0f32; 8];
-                _mm256_storeu_ps(dist.as_mut_ptr(), t0);
-                (_mm256_movemask_ps(entered) as u32, dist)
-            }
+            super::avx::lane_hits(self.test_raw(node, tfar))
         }
 
         /// [`Avx512Ray::test`] left in registers: the entry distances and the entered lanes
@@ -491,14 +484,7 @@ mod avx {
             far: [usize; 3],
             tfar: f32,
         ) -> LaneHitsN<WIDTH8> {
-            let (t0, entered) = self.slabs_raw(node, near, far, tfar);
-            // SAFETY: only reached with AVX2 enabled; the unaligned store writes the 8 floats
-            // of `dist`.
-            unsafe {
-                let mut dist = [0.0f32; 8];
-                _mm256_storeu_ps(dist.as_mut_ptr(), t0);
-                (_mm256_movemask_ps(entered) as u32, dist)
-            }
+            lane_hits(self.slabs_raw(node, near, far, tfar))
         }
 
         /// [`Broadcast::slabs`] left in registers: the entry distances and the entered lanes
@@ -620,6 +606,19 @@ mod avx {
         #[inline(always)]
         pub fn test_raw(&self, node: &WideNode8, tfar: f32) -> (__m256, __m256) {
             self.b.slabs_raw(node, Self::NEAR, Self::FAR, tfar)
+        }
+    }
+
+    /// The eight-lane test's answer as a mask and an array, from its entry distances and
+    /// entered lanes (all ones) in registers. Only call with AVX2 present.
+    #[inline(always)]
+    pub fn lane_hits((t0, entered): (__m256, __m256)) -> LaneHitsN<WIDTH8> {
+        // SAFETY: only reached with AVX2 enabled; the unaligned store writes the 8 floats of
+        // `dist`.
+        unsafe {
+            let mut dist = [0.0f32; 8];
+            _mm256_storeu_ps(dist.as_mut_ptr(), t0);
+            (_mm256_movemask_ps(entered) as u32, dist)
         }
     }
 
@@ -1441,22 +1440,16 @@ impl Stack {
         self.len += 1;
     }
 
+    /// Pop an entry: code and distance.
     #[inline(always)]
     fn pop(&mut self) -> Option<(u32, f32)> {
-        if self.len == 0 {
-            return None;
-        }
-        self.len -= 1;
-        // SAFETY: every slot below the old `len` was written by a push before being counted.
-        unsafe {
-            Some((
-                self.codes[self.len].assume_init(),
-                self.dists[self.len].assume_init(),
-            ))
-        }
+        let code = self.pop_code()?;
+        // SAFETY: the distance slot was written with the code (the walks that pop distances
+        // push both rows).
+        Some((code, unsafe { self.dists[self.len].assume_init() }))
     }
 
-    /// Pop a code alone (the any-hit walk pushes no distances).
+    /// Pop a code alone (the any-hit walks push no distances).
     #[inline(always)]
     fn pop_code(&mut self) -> Option<u32> {
         if self.len == 0 {
@@ -2588,12 +2581,9 @@ fn occluded_walk_compact<const STATS: bool, T: WideRay>(
                 return true;
             }
         }
-        code = match next {
+        code = match next.or_else(|| stack.pop_code()) {
             Some(child) => child,
-            None => match stack.pop_code() {
-                Some(child) => child,
-                None => return false,
-            },
+            None => return false,
         };
     }
 }
