@@ -150,6 +150,44 @@ fn every_preset_equals_brute_force_on_builtin_scenes() {
     }
 }
 
+/// The fast preset with a leaf size of 1 (a scene's top-level tree) gives every triangle a
+/// leaf of its own, at both widths, and traces like brute force.
+#[test]
+fn fast_builds_of_one_triangle_per_leaf() {
+    for name in ["city", "sphere"] {
+        let s = scene::load_with(
+            &format!("builtin:{name}"),
+            &SceneOptions::default().with_prims(3000),
+        )
+        .unwrap();
+        let tris = triangles(&s);
+        let rays = rays_for(&tris, 4000, 23);
+        let want = brute_force(&tris, &rays);
+        for width in [4, 8] {
+            let opts = BuildOptions::preset(Preset::Fast)
+                .with_width(width)
+                .with_leaf_size(1);
+            let a = Accel::build(&s.vertices, &s.indices, &opts).unwrap();
+            let w = a.wide_bvh();
+            w.validate(a.triangle_count(), |i| a.triangle(i)).unwrap();
+            assert_eq!(
+                w.leaves,
+                tris.len(),
+                "{name}/{width}: one leaf per triangle"
+            );
+            assert!(w.packets.iter().all(|p| p.count == 1 && p.last == 1));
+            check(&format!("{name} fast/leaf1/{width}-wide"), &a, &rays, &want);
+            // The default keeps leaves of several triangles.
+            let d =
+                Accel::build(&s.vertices, &s.indices, &BuildOptions::preset(Preset::Fast)).unwrap();
+            assert!(
+                d.wide_bvh().leaves < tris.len() / 2,
+                "{name}: default leaves"
+            );
+        }
+    }
+}
+
 #[test]
 fn every_preset_equals_brute_force_on_hard_scenes() {
     let mut tested = 0;

@@ -146,8 +146,10 @@ fn all_bvhs(tris: &[[Vec3; 3]]) -> Vec<(String, WideBvh)> {
     ];
     for l in LAYOUTS {
         let l: LayoutSpec = l.parse().unwrap();
+        // Leaf sizes 4 and 1 build on the fast path; 2 goes through a BVH2 and the collapse.
         configs.push((Builder::Lbvh, Some(l), false, 4));
-        configs.push((Builder::LbvhApetrei, Some(l), false, 1));
+        configs.push((Builder::Lbvh, Some(l), false, 1));
+        configs.push((Builder::LbvhApetrei, Some(l), false, 2));
         configs.push((Builder::Lbvh, Some(l), true, 8));
     }
     for (builder, layout, restructure, leaf) in configs {

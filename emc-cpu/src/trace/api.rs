@@ -48,11 +48,11 @@ use crate::bvh::refit::CollapseParams;
 use crate::bvh::Bvh;
 use crate::trace::intersect::{Hit, Ray};
 use crate::trace::refit::RefitPlan;
-use crate::trace::traverse::{closest, occluded, NodeTest, TraceStats};
+use crate::trace::traverse::{closest, closest_valid, occluded, NodeTest, TraceStats};
 use crate::trace::wide::{
     CollapseScratch, Indexed, TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, WIDTH, WIDTH8,
 };
-use crate::trace::wide_lbvh::{build_fast, mesh_boxes, FastScratch, FastTimes};
+use crate::trace::wide_lbvh::{build_fast, mesh_boxes, FastScratch, FastTimes, LEAF_MAX};
 use crate::trace::TraceError;
 
 /// Speed / quality trade-off of [`Accel::build`].
@@ -96,7 +96,8 @@ pub struct BuildOptions {
     /// Largest leaf of the SAH leaf collapse of the BVH2 before the wide collapse (1 keeps one
     /// triangle per leaf; default 4, except after treelet restructuring, where `None` leaves
     /// the leaves to the wide collapse). The wide tree's cover DP merges leaves up to eight
-    /// triangles either way; the fast preset's builder chooses its own.
+    /// triangles either way; the fast preset's builder chooses its own, up to eight, or one
+    /// triangle per leaf with a leaf size of 1.
     pub leaf_size: Option<u32>,
     /// Children per node of the traced tree, 4 or 8 (`None`: [`default_width`]).
     pub width: Option<usize>,
@@ -304,7 +305,19 @@ fn fast_path(opts: &BuildOptions) -> bool {
     let (builder, _, restructure) = opts.resolve();
     matches!(builder, Builder::Lbvh | Builder::LbvhApetrei)
         && !restructure
-        && opts.leaf_size.is_none_or(|l| l == DEFAULT_LEAF_SIZE)
+        && opts
+            .leaf_size
+            .is_none_or(|l| l == DEFAULT_LEAF_SIZE || l == 1)
+}
+
+/// The largest leaf of a fast-path build: one triangle when asked for, else the builder's own
+/// choice up to [`LEAF_MAX`].
+fn fast_leaf_max(opts: &BuildOptions) -> u32 {
+    if opts.leaf_size == Some(1) {
+        1
+    } else {
+        LEAF_MAX
+    }
 }
 
 /// Buffers of dropped structures, waiting for the next build of their context: at most
@@ -611,6 +624,12 @@ impl Accel {
         closest::<false>(&self.bvh, ray, self.test, &mut TraceStats::default())
     }
 
+    /// [`Accel::intersect`] of a ray the caller has checked ([`Ray::is_valid`]).
+    #[inline]
+    pub(crate) fn intersect_valid(&self, ray: &Ray) -> Option<Hit> {
+        closest_valid::<false>(&self.bvh, ray, self.test, &mut TraceStats::default())
+    }
+
     /// True when `ray` hits anything in `[tnear, tfar]`.
     #[inline]
     pub fn occluded(&self, ray: &Ray) -> bool {
@@ -707,6 +726,7 @@ fn build_over(
                 vertices,
                 indices,
                 &layout,
+                fast_leaf_max(opts),
                 &mut ctx.fast8,
                 &mut bvh.nodes8,
                 &mut bvh.packets,
@@ -718,6 +738,7 @@ fn build_over(
                 vertices,
                 indices,
                 &layout,
+                fast_leaf_max(opts),
                 &mut ctx.fast4,
                 &mut bvh.nodes,
                 &mut bvh.packets,

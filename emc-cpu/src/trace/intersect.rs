@@ -61,11 +61,13 @@ impl Ray {
     /// non-zero direction, `tnear` finite and `tnear <= tfar` (no NaN).
     #[inline]
     pub fn is_valid(&self) -> bool {
-        self.origin.is_finite()
-            && self.dir.is_finite()
-            && self.dir != Vec3::ZERO
-            && self.tnear.is_finite()
-            && self.tnear <= self.tfar
+        // Without branches (a two-level trace checks every ray it sends into an instance):
+        // x · 0 is ±0 for a finite x and NaN otherwise, so the sum is 0 exactly when origin,
+        // direction and `tnear` are all finite.
+        let (o, d) = (self.origin, self.dir);
+        let finite = (o * 0.0 + d * 0.0).element_sum() + self.tnear * 0.0 == 0.0;
+        let nonzero = (d.x != 0.0) | (d.y != 0.0) | (d.z != 0.0);
+        finite & nonzero & (self.tnear <= self.tfar)
     }
 }
 

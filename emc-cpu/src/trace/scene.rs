@@ -159,7 +159,8 @@ fn box_tree(corners: &[Vec3], tree: &mut Option<Accel>) -> Result<(), TraceError
     *tree = Some(Accel::build(
         corners,
         &indices,
-        &BuildOptions::preset(Preset::Fast),
+        // One box per leaf: the node test is the item's box test (see `closest_items`).
+        &BuildOptions::preset(Preset::Fast).with_leaf_size(1),
     )?);
     Ok(())
 }
@@ -509,7 +510,9 @@ impl Scene {
         let r = Ray { tfar: t, ..*ray };
         match &g.kind {
             Kind::Mesh(a) => {
-                if let Some(mut h) = a.intersect(&r) {
+                // Valid: `ray` is (checked at the top, or on entering an instance) and
+                // `tnear ≤ t ≤ ray.tfar`.
+                if let Some(mut h) = a.intersect_valid(&r) {
                     h.geom = id;
                     h.instance = instance;
                     offer(best, h);

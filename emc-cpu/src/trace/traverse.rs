@@ -1891,7 +1891,23 @@ pub fn closest<const STATS: bool>(
     if STATS {
         stats.rays += 1;
     }
-    if !ray.is_valid() || (bvh.nodes.is_empty() && bvh.nodes8.is_empty()) {
+    if !ray.is_valid() {
+        return None;
+    }
+    closest_valid::<STATS>(bvh, ray, kind, stats)
+}
+
+/// [`closest`] of a ray known to be valid ([`Ray::is_valid`]; not counted in `stats.rays`):
+/// for callers that checked it already, such as a two-level trace entering an instance.
+#[inline]
+pub(crate) fn closest_valid<const STATS: bool>(
+    bvh: &WideBvh,
+    ray: &Ray,
+    kind: NodeTest,
+    stats: &mut TraceStats,
+) -> Option<Hit> {
+    debug_assert!(ray.is_valid());
+    if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
         return None;
     }
     // Each kernel is its own function that makes the ray's constants itself: with its target
@@ -2155,6 +2171,18 @@ fn closest_items_in<const W: usize, L: Lanes<W>>(
     visit: &mut impl FnMut(u32, f32) -> f32,
 ) {
     let mut best = r.tfar;
+    let stats = &mut TraceStats::default();
+    if bvh.leaves == bvh.triangles {
+        // One item per leaf (a scene's top-level tree): the node test has tested the item's
+        // box, entered it within the slackened best distance and ordered it among its
+        // siblings; the item is visited as it is popped.
+        let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
+            best = visit(bvh.packets[(code & !LEAF) as usize].id[0], best);
+            best
+        });
+        lanes.closest_walk::<false>(bvh, nodes, r, stats, &mut leaf);
+        return;
+    }
     let abs = abs_slack(bvh, r);
     // Each item's own box is tested (an item is often far costlier than a box: a transformed
     // ray through a whole tree, or a user's callback), and the entered ones are visited
@@ -2198,7 +2226,6 @@ fn closest_items_in<const W: usize, L: Lanes<W>>(
         }
         best
     });
-    let stats = &mut TraceStats::default();
     lanes.closest_walk::<false>(bvh, nodes, r, stats, &mut leaf);
 }
 
@@ -2414,6 +2441,14 @@ fn occluded_items_in<const W: usize, L: Lanes<W>>(
     lanes: &L,
     visit: &mut impl FnMut(u32) -> bool,
 ) -> bool {
+    let stats = &mut TraceStats::default();
+    if bvh.leaves == bvh.triangles {
+        // One item per leaf: its box was the node test's (see `closest_items_in`).
+        let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
+            visit(bvh.packets[(code & !LEAF) as usize].id[0])
+        });
+        return lanes.occluded_walk::<false>(bvh, nodes, r, stats, &mut leaf);
+    }
     let cull = slack(r.tfar, abs_slack(bvh, r));
     // The leaves' item boxes take the SSE test (the walk's own, or made here for a scalar walk).
     #[cfg(target_arch = "x86_64")]
@@ -2431,7 +2466,6 @@ fn occluded_items_in<const W: usize, L: Lanes<W>>(
         );
         hit
     });
-    let stats = &mut TraceStats::default();
     lanes.occluded_walk::<false>(bvh, nodes, r, stats, &mut leaf)
 }
 

@@ -62,6 +62,8 @@ pub struct Inputs<'a, K> {
     pub indices: &'a [[u32; 3]],
     /// Child box padding (see `WideBvh::from_bvh2`).
     pub pad: f32,
+    /// Largest leaf, `1..=`[`LEAF_MAX`] (1: every primitive its own leaf).
+    pub leaf_max: u32,
 }
 
 /// Output buffers of the build (appended to).
@@ -329,7 +331,7 @@ macro_rules! block_builders {
                         break;
                     }
                     s.stack.pop();
-                    node = merge(&s.nodes[top as usize], &node, top, cur);
+                    node = merge(&s.nodes[top as usize], &node, top, cur, inp.leaf_max);
                     s.nodes[next] = node;
                     cur = next as u32;
                     next += 1;
@@ -508,13 +510,14 @@ fn build_blocks<K: RadixKey, const W: usize>(
     blocks_base(inp, ranges, out, sink);
 }
 
-/// The inner node over subtrees `a` (node `l`) and `c` (node `r`): its box and leaf decision.
+/// The inner node over subtrees `a` (node `l`) and `c` (node `r`): its box and leaf decision
+/// (a leaf of at most `leaf_max` primitives).
 #[inline(always)]
-fn merge(a: &BNode, c: &BNode, l: u32, r: u32) -> BNode {
+fn merge(a: &BNode, c: &BNode, l: u32, r: u32, leaf_max: u32) -> BNode {
     let (lo, hi) = (a.lo.min(c.lo), a.hi.max(c.hi));
     let area = half_area_a(lo, hi);
     let count = a.count + c.count;
-    let (leaf, cost) = if count <= LEAF_MAX {
+    let (leaf, cost) = if count <= leaf_max {
         let leaf_cost = COST_PACKET * area * count.div_ceil(WIDTH as u32) as f32;
         let split = COST_SMALL_SPLIT * area + a.cost + c.cost;
         (leaf_cost <= split, leaf_cost.min(split))
@@ -986,12 +989,15 @@ pub struct FastTimes {
 }
 
 /// The fast build: a `W`-wide tree over the mesh (`W` = 4 or 8) into `bvh`'s buffers, codes of
-/// `layout`, scratch from `scratch`. Fails on an empty mesh, an index naming no vertex, a
-/// non-finite vertex, or too many triangles.
+/// `layout`, leaves of at most `leaf_max` triangles (`1..=`[`LEAF_MAX`]), scratch from
+/// `scratch`. Fails on an empty mesh, an index naming no vertex, a non-finite vertex, or too
+/// many triangles.
+#[allow(clippy::too_many_arguments)]
 pub fn build_fast<const W: usize>(
     vertices: &[Vec3],
     indices: &[[u32; 3]],
     layout: &crate::auto::LayoutChoice,
+    leaf_max: u32,
     scratch: &mut FastScratch<W>,
     nodes: &mut Vec<WideNodeN<W>>,
     packets: &mut Vec<TriPacket>,
@@ -1000,6 +1006,7 @@ pub fn build_fast<const W: usize>(
     use crate::trace::wide::MAX_TRIANGLES;
     use std::time::Instant;
     let n = indices.len();
+    assert!((1..=LEAF_MAX).contains(&leaf_max), "leaf size {leaf_max}");
     if n == 0 {
         return Err(TraceError::NoTriangles);
     }
@@ -1038,6 +1045,7 @@ pub fn build_fast<const W: usize>(
             vertices,
             indices,
             pad,
+            leaf_max,
         };
         finish_tree(
             &inp,
@@ -1065,6 +1073,7 @@ pub fn build_fast<const W: usize>(
             vertices,
             indices,
             pad,
+            leaf_max,
         };
         finish_tree(
             &inp,
