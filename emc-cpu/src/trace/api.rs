@@ -48,7 +48,9 @@ use crate::bvh::refit::CollapseParams;
 use crate::bvh::Bvh;
 use crate::trace::intersect::{Hit, Ray};
 use crate::trace::refit::RefitPlan;
-use crate::trace::traverse::{closest, closest_valid, occluded, NodeTest, TraceStats};
+use crate::trace::traverse::{
+    closest, closest_valid, occluded, occluded_valid, NodeTest, TraceStats,
+};
 use crate::trace::wide::{
     CollapseScratch, Indexed, TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, WIDTH, WIDTH8,
 };
@@ -634,6 +636,12 @@ impl Accel {
     #[inline]
     pub fn occluded(&self, ray: &Ray) -> bool {
         occluded::<false>(&self.bvh, ray, self.test, &mut TraceStats::default())
+    }
+
+    /// [`Accel::occluded`] of a ray the caller has checked ([`Ray::is_valid`]).
+    #[inline]
+    pub(crate) fn occluded_valid(&self, ray: &Ray) -> bool {
+        occluded_valid::<false>(&self.bvh, ray, self.test, &mut TraceStats::default())
     }
 
     /// Closest hits of many rays, in parallel; one answer per ray, in order.

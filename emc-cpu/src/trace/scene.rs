@@ -540,8 +540,21 @@ impl Scene {
             }
             Kind::Instance(inst) => {
                 let o = inst.object_ray(&r);
-                if o.is_valid() {
-                    inst.scene.closest_into(&o, id, best);
+                if !o.is_valid() {
+                    return;
+                }
+                // An instanced mesh (the usual instance) is traced straight away.
+                match inst.scene.lone_mesh() {
+                    Some((a, mask)) => {
+                        if mask & o.mask != 0 {
+                            if let Some(mut h) = a.intersect_valid(&o) {
+                                h.geom = 0;
+                                h.instance = id;
+                                offer(best, h);
+                            }
+                        }
+                    }
+                    None => inst.scene.closest_into(&o, id, best),
                 }
             }
         }
@@ -575,7 +588,8 @@ impl Scene {
             return false;
         }
         match &g.kind {
-            Kind::Mesh(a) => a.occluded(ray),
+            // Valid: checked at the top, or on entering an instance.
+            Kind::Mesh(a) => a.occluded_valid(ray),
             Kind::Custom(c) => {
                 let Some(tree) = &c.tree else { return false };
                 occluded_items(tree.wide_bvh(), ray, tree.node_test(), |prim| {
@@ -584,8 +598,26 @@ impl Scene {
             }
             Kind::Instance(inst) => {
                 let o = inst.object_ray(ray);
-                o.is_valid() && inst.scene.any(&o)
+                if !o.is_valid() {
+                    return false;
+                }
+                match inst.scene.lone_mesh() {
+                    Some((a, mask)) => mask & o.mask != 0 && a.occluded_valid(&o),
+                    None => inst.scene.any(&o),
+                }
             }
+        }
+    }
+
+    /// The mesh of a scene of one geometry, a mesh, and its mask.
+    #[inline]
+    fn lone_mesh(&self) -> Option<(&Accel, u32)> {
+        match self.geoms.as_slice() {
+            [g] => match &g.kind {
+                Kind::Mesh(a) => Some((a, g.mask)),
+                _ => None,
+            },
+            _ => None,
         }
     }
 }

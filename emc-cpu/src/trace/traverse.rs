@@ -2358,7 +2358,19 @@ pub fn occluded<const STATS: bool>(
     if STATS {
         stats.rays += 1;
     }
-    if !ray.is_valid() || (bvh.nodes.is_empty() && bvh.nodes8.is_empty()) {
+    ray.is_valid() && occluded_valid::<STATS>(bvh, ray, kind, stats)
+}
+
+/// [`occluded`] of a ray known to be valid ([`Ray::is_valid`]; not counted in `stats.rays`).
+#[inline]
+pub(crate) fn occluded_valid<const STATS: bool>(
+    bvh: &WideBvh,
+    ray: &Ray,
+    kind: NodeTest,
+    stats: &mut TraceStats,
+) -> bool {
+    debug_assert!(ray.is_valid());
+    if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
         return false;
     }
     match kernel_of(bvh, kind) {
