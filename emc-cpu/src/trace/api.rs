@@ -49,7 +49,7 @@ use crate::bvh::Bvh;
 use crate::trace::intersect::{Hit, Ray};
 use crate::trace::refit::RefitPlan;
 use crate::trace::traverse::{
-    closest, closest_valid, occluded, occluded_valid, NodeTest, TraceStats,
+    closest_valid, kernel_of, occluded_valid, Kernel, NodeTest, TraceStats,
 };
 use crate::trace::wide::{
     CollapseScratch, Indexed, TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, WIDTH, WIDTH8,
@@ -404,6 +404,8 @@ pub struct Accel {
     indices: Vec<[u32; 3]>,
     opts: BuildOptions,
     test: NodeTest,
+    /// The traversal kernel of `test` on this tree (set after every build).
+    kernel: Kernel,
     /// The context of [`Accel::build`] and [`Accel::rebuild`] (empty after
     /// [`Accel::build_in`] until a plain rebuild).
     ctx: BuildContext,
@@ -461,6 +463,7 @@ impl Accel {
             indices: Vec::new(),
             opts: *opts,
             test: NodeTest::for_width(width),
+            kernel: Kernel::Scalar4,
             ctx: BuildContext::new(),
             phases: FastTimes::default(),
             refit: None,
@@ -475,6 +478,7 @@ impl Accel {
             vertices,
             indices,
         )?;
+        a.kernel = kernel_of(&a.bvh, a.test);
         crate::buffers::copied_par(&mut vert_copy, vertices);
         crate::buffers::copied_par(&mut index_copy, indices);
         a.vertices = vert_copy;
@@ -535,6 +539,9 @@ impl Accel {
             &self.indices,
         );
         self.refit = None;
+        // The same width and test, so the same kernel (a failed build leaves the tree empty,
+        // which every query checks first).
+        self.kernel = kernel_of(&self.bvh, self.test);
         r?;
         crate::buffers::copy_par(&mut self.vertices, vertices);
         self.debug_validate();
@@ -606,12 +613,14 @@ impl Accel {
         let width = default_width();
         let bvh = WideBvh::from_bvh2_width(bvh2, &tris, width)?;
         let n = tris.len() as u32;
+        let test = NodeTest::for_width(width);
         Ok(Accel {
+            kernel: kernel_of(&bvh, test),
             bvh,
             vertices: tris.iter().flatten().copied().collect(),
             indices: (0..n).map(|i| [3 * i, 3 * i + 1, 3 * i + 2]).collect(),
             opts: BuildOptions::default(),
-            test: NodeTest::for_width(width),
+            test,
             ctx: BuildContext::new(),
             phases: FastTimes::default(),
             refit: None,
@@ -623,25 +632,28 @@ impl Accel {
     /// non-finite or zero direction, NaN interval).
     #[inline]
     pub fn intersect(&self, ray: &Ray) -> Option<Hit> {
-        closest::<false>(&self.bvh, ray, self.test, &mut TraceStats::default())
+        if !ray.is_valid() {
+            return None;
+        }
+        self.intersect_valid(ray)
     }
 
     /// [`Accel::intersect`] of a ray the caller has checked ([`Ray::is_valid`]).
     #[inline]
     pub(crate) fn intersect_valid(&self, ray: &Ray) -> Option<Hit> {
-        closest_valid::<false>(&self.bvh, ray, self.test, &mut TraceStats::default())
+        closest_valid::<false>(&self.bvh, ray, self.kernel, &mut TraceStats::default())
     }
 
     /// True when `ray` hits anything in `[tnear, tfar]`.
     #[inline]
     pub fn occluded(&self, ray: &Ray) -> bool {
-        occluded::<false>(&self.bvh, ray, self.test, &mut TraceStats::default())
+        ray.is_valid() && self.occluded_valid(ray)
     }
 
     /// [`Accel::occluded`] of a ray the caller has checked ([`Ray::is_valid`]).
     #[inline]
     pub(crate) fn occluded_valid(&self, ray: &Ray) -> bool {
-        occluded_valid::<false>(&self.bvh, ray, self.test, &mut TraceStats::default())
+        occluded_valid::<false>(&self.bvh, ray, self.kernel, &mut TraceStats::default())
     }
 
     /// Closest hits of many rays, in parallel; one answer per ray, in order.

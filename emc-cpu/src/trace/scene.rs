@@ -507,12 +507,11 @@ impl Scene {
         if g.mask & ray.mask == 0 {
             return;
         }
-        let r = Ray { tfar: t, ..*ray };
         match &g.kind {
             Kind::Mesh(a) => {
                 // Valid: `ray` is (checked at the top, or on entering an instance) and
                 // `tnear ≤ t ≤ ray.tfar`.
-                if let Some(mut h) = a.intersect_valid(&r) {
+                if let Some(mut h) = a.intersect_valid(&Ray { tfar: t, ..*ray }) {
                     h.geom = id;
                     h.instance = instance;
                     offer(best, h);
@@ -520,6 +519,7 @@ impl Scene {
             }
             Kind::Custom(c) => {
                 let Some(tree) = &c.tree else { return };
+                let r = Ray { tfar: t, ..*ray };
                 closest_items(tree.wide_bvh(), &r, tree.node_test(), |prim, t| {
                     let q = Ray { tfar: t, ..r };
                     if let Some(ch) = (c.intersect)(&q, prim) {
@@ -539,7 +539,10 @@ impl Scene {
                 });
             }
             Kind::Instance(inst) => {
-                let o = inst.object_ray(&r);
+                let o = Ray {
+                    tfar: t,
+                    ..inst.object_ray(ray)
+                };
                 if !o.is_valid() {
                     return;
                 }

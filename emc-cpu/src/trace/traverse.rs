@@ -1857,9 +1857,10 @@ fn tree_of(bvh: &WideBvh, kind: NodeTest) -> (bool, NodeTest) {
 }
 
 /// The loop a traversal runs: which tree, which node test (see [`tree_of`]), chosen per call
-/// from the tree and the (cached) CPU features, before any per-ray work.
-#[derive(Clone, Copy, PartialEq, Eq)]
-enum Kernel {
+/// from the tree and the (cached) CPU features, before any per-ray work, or once per structure
+/// (`Accel` keeps its own).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Kernel {
     Avx512,
     Avx2,
     Sse,
@@ -1869,7 +1870,7 @@ enum Kernel {
 
 /// The kernel of a traversal asked for `kind` in `bvh`.
 #[inline(always)]
-fn kernel_of(bvh: &WideBvh, kind: NodeTest) -> Kernel {
+pub(crate) fn kernel_of(bvh: &WideBvh, kind: NodeTest) -> Kernel {
     match tree_of(bvh, kind) {
         (true, NodeTest::Avx2) if kind == NodeTest::Avx512 && avx512_available() => Kernel::Avx512,
         (true, NodeTest::Avx2) if avx2_available() => Kernel::Avx2,
@@ -1894,16 +1895,17 @@ pub fn closest<const STATS: bool>(
     if !ray.is_valid() {
         return None;
     }
-    closest_valid::<STATS>(bvh, ray, kind, stats)
+    closest_valid::<STATS>(bvh, ray, kernel_of(bvh, kind), stats)
 }
 
-/// [`closest`] of a ray known to be valid ([`Ray::is_valid`]; not counted in `stats.rays`):
-/// for callers that checked it already, such as a two-level trace entering an instance.
+/// [`closest`] of a ray known to be valid ([`Ray::is_valid`]; not counted in `stats.rays`)
+/// with the kernel [`kernel_of`] gave for this tree: for callers that checked the ray and
+/// chose the kernel already, such as a two-level trace entering an instance.
 #[inline]
 pub(crate) fn closest_valid<const STATS: bool>(
     bvh: &WideBvh,
     ray: &Ray,
-    kind: NodeTest,
+    kernel: Kernel,
     stats: &mut TraceStats,
 ) -> Option<Hit> {
     debug_assert!(ray.is_valid());
@@ -1912,7 +1914,7 @@ pub(crate) fn closest_valid<const STATS: bool>(
     }
     // Each kernel is its own function that makes the ray's constants itself: with its target
     // features, and without the other kernels' registers and stack in its frame.
-    match kernel_of(bvh, kind) {
+    match kernel {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `kernel_of` picks `Avx512` only when the CPU has AVX-512 F/VL/DQ and AVX2.
         Kernel::Avx512 => unsafe { closest_avx512::<STATS>(bvh, ray, stats) },
@@ -2358,22 +2360,23 @@ pub fn occluded<const STATS: bool>(
     if STATS {
         stats.rays += 1;
     }
-    ray.is_valid() && occluded_valid::<STATS>(bvh, ray, kind, stats)
+    ray.is_valid() && occluded_valid::<STATS>(bvh, ray, kernel_of(bvh, kind), stats)
 }
 
-/// [`occluded`] of a ray known to be valid ([`Ray::is_valid`]; not counted in `stats.rays`).
+/// [`occluded`] of a ray known to be valid ([`Ray::is_valid`]; not counted in `stats.rays`)
+/// with the kernel [`kernel_of`] gave for this tree.
 #[inline]
 pub(crate) fn occluded_valid<const STATS: bool>(
     bvh: &WideBvh,
     ray: &Ray,
-    kind: NodeTest,
+    kernel: Kernel,
     stats: &mut TraceStats,
 ) -> bool {
     debug_assert!(ray.is_valid());
     if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
         return false;
     }
-    match kernel_of(bvh, kind) {
+    match kernel {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `kernel_of` picks `Avx512` only when the CPU has AVX-512 F/VL/DQ and AVX2.
         Kernel::Avx512 => unsafe { occluded_avx512::<STATS>(bvh, ray, stats) },
