@@ -563,9 +563,12 @@ impl Accel {
             });
         }
         let (bvh, indices, nv) = (&self.bvh, &self.indices, vertices.len());
-        let (plan, all_referenced) = &mut *self
-            .refit
-            .get_or_insert_with(|| (RefitPlan::new(bvh), every_vertex_referenced(indices, nv)));
+        let (plan, all_referenced) = &mut *self.refit.get_or_insert_with(|| {
+            (
+                RefitPlan::new(bvh, indices),
+                every_vertex_referenced(indices, nv),
+            )
+        });
         // The largest coordinate of the referenced vertices (as a build measures it): over
         // the vertex list when every vertex is referenced, else through the indices (which
         // also names the first triangle with a non-finite corner).
@@ -585,15 +588,7 @@ impl Accel {
             }
         };
         crate::buffers::copy_par(&mut self.vertices, vertices);
-        let (verts, idx) = (&self.vertices, &self.indices);
-        self.bvh.refit(
-            plan,
-            |id| {
-                let [a, b, c] = idx[id as usize];
-                [verts[a as usize], verts[b as usize], verts[c as usize]]
-            },
-            max_abs,
-        );
+        self.bvh.refit(plan, &self.vertices, max_abs);
         self.debug_validate();
         Ok(())
     }

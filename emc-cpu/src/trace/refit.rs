@@ -5,10 +5,10 @@
 #![forbid(unsafe_code)]
 
 use emc_core::Aabb;
-use glam::{Vec3, Vec4};
+use glam::{Vec3, Vec3A};
 use rayon::prelude::*;
 
-use crate::trace::wide::{TriPacket, WideBvh, WideNodeN, EMPTY, LEAF, WIDTH, WIDTH8};
+use crate::trace::wide::{WideBvh, WideNodeN, EMPTY, LEAF, WIDTH, WIDTH8};
 
 /// Packets per rayon task.
 const PACKETS_PER_TASK: usize = 1024;
@@ -22,6 +22,9 @@ pub struct RefitPlan {
     /// Per packet: whether it ends its leaf (the packets' own flag, kept compact so that the
     /// node pass does not touch the packets again).
     last: Vec<bool>,
+    /// Per packet, each lane's three vertex indices: read in packet order, where going
+    /// through the triangle ids gathered the index list at random (48 bytes per packet).
+    corners: Vec<[[u32; 3]; WIDTH]>,
     /// Scratch kept between refits (fresh buffers of this size cost page faults each time):
     /// the packets' boxes and the nodes' unpadded boxes.
     packet_boxes: Vec<Aabb>,
@@ -29,12 +32,18 @@ pub struct RefitPlan {
 }
 
 impl RefitPlan {
-    /// The levels of both trees of `bvh` (breadth first from node 0).
-    pub fn new(bvh: &WideBvh) -> RefitPlan {
+    /// The levels of both trees of `bvh` (breadth first from node 0) over the mesh triangles
+    /// `indices` (every id of a packet names one).
+    pub fn new(bvh: &WideBvh, indices: &[[u32; 3]]) -> RefitPlan {
         RefitPlan {
             order4: Order::of(&bvh.nodes),
             order8: Order::of(&bvh.nodes8),
             last: bvh.packets.iter().map(|p| p.last != 0).collect(),
+            corners: bvh
+                .packets
+                .par_iter()
+                .map(|p| p.id.map(|id| indices[id as usize]))
+                .collect(),
             packet_boxes: Vec::new(),
             node_boxes: Vec::new(),
         }
@@ -137,21 +146,6 @@ fn levels<const W: usize>(nodes: &[WideNodeN<W>]) -> Vec<Vec<u32>> {
     out
 }
 
-/// Union of the boxes of the triangles of a packet. Unused lanes repeat the last real
-/// triangle (see [`TriPacket`]), so all four lanes are taken, one SIMD min and max per row.
-#[inline]
-fn packet_box(p: &TriPacket) -> Aabb {
-    let row = |k: usize| Vec4::from_array(p.v[k]);
-    let mut lo = [0.0f32; 3];
-    let mut hi = [0.0f32; 3];
-    for a in 0..3 {
-        let (r0, r1, r2) = (row(a), row(3 + a), row(6 + a));
-        lo[a] = r0.min(r1).min(r2).min_element();
-        hi[a] = r0.max(r1).max(r2).max_element();
-    }
-    Aabb::new(lo.into(), hi.into())
-}
-
 /// Union of the packet boxes of the leaf whose first packet is `first`.
 #[inline]
 fn leaf_box(last: &[bool], boxes: &[Aabb], first: usize) -> Aabb {
@@ -243,32 +237,34 @@ fn refit_tree<const W: usize>(
 }
 
 impl WideBvh {
-    /// Refit the tree to moved triangles: `tri(id)` gives triangle `id`'s new corners and
-    /// `max_abs` their largest absolute coordinate (the culling pad and the traversal's slack
-    /// follow it). The topology, node order and packet order stay; `plan` must be
-    /// [`RefitPlan::new`] of this tree. Refitting to unmoved triangles gives the same nodes
-    /// bit for bit.
-    pub fn refit(
-        &mut self,
-        plan: &mut RefitPlan,
-        tri: impl Fn(u32) -> [Vec3; 3] + Sync,
-        max_abs: f32,
-    ) {
+    /// Refit the tree to moved vertices: `vertices` are the mesh's new positions (the
+    /// indices the plan was made with name them) and `max_abs` the largest absolute coordinate
+    /// of the triangles' corners (the culling pad and the traversal's slack follow it). The
+    /// topology, node order and packet order stay; `plan` must be [`RefitPlan::new`] of this
+    /// tree. Refitting to unmoved triangles gives the same nodes bit for bit.
+    pub fn refit(&mut self, plan: &mut RefitPlan, vertices: &[Vec3], max_abs: f32) {
         let mut packet_boxes = std::mem::take(&mut plan.packet_boxes);
         packet_boxes.resize(self.packets.len(), Aabb::EMPTY);
         self.packets
             .par_iter_mut()
             .zip(packet_boxes.par_iter_mut())
+            .zip(plan.corners.par_iter())
             .with_min_len(PACKETS_PER_TASK)
-            .for_each(|(p, b)| {
+            .for_each(|((p, b), corners)| {
+                // The box from the corners in registers (reading the rows back after the
+                // lane-by-lane stores stalled on store forwarding).
+                let (mut lo, mut hi) = (Vec3A::INFINITY, Vec3A::NEG_INFINITY);
                 for lane in 0..WIDTH {
-                    let [v0, v1, v2] = tri(p.id[lane]);
+                    let [v0, v1, v2] = corners[lane].map(|i| vertices[i as usize]);
                     let v = &mut p.v;
                     (v[0][lane], v[1][lane], v[2][lane]) = (v0.x, v0.y, v0.z);
                     (v[3][lane], v[4][lane], v[5][lane]) = (v1.x, v1.y, v1.z);
                     (v[6][lane], v[7][lane], v[8][lane]) = (v2.x, v2.y, v2.z);
+                    let (a, c, d) = (Vec3A::from(v0), Vec3A::from(v1), Vec3A::from(v2));
+                    lo = lo.min(a.min(c).min(d));
+                    hi = hi.max(a.max(c).max(d));
                 }
-                *b = packet_box(p);
+                *b = Aabb::new(lo.into(), hi.into());
             });
         self.max_abs = max_abs;
         let pad = max_abs * (1.0 / 65536.0);
