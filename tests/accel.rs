@@ -457,8 +457,9 @@ fn bad_meshes_and_options_are_refused() {
             Err(TraceError::Width(6))
         ));
     }
-    // The BVH2 presets (the fast one has no leaf-size option of its own).
-    for preset in [Preset::Balanced, Preset::Quality] {
+    // Every preset: a leaf size of 0 is refused (the fast preset builds on its own path only
+    // at leaf sizes 1 and 4).
+    for preset in [Preset::Fast, Preset::Balanced, Preset::Quality] {
         let l = BuildOptions::preset(preset).with_leaf_size(0);
         assert!(matches!(
             Accel::build(&v, &[[0, 1, 2]], &l),
@@ -650,4 +651,64 @@ fn every_preset_builds_large_hard_scenes() {
         };
         check_scene(&format!("{spec} (20k)"), &s, 1000);
     }
+}
+
+/// The building blocks under `Accel` refuse inputs that do not fit with errors: the fast
+/// builder a leaf size it does not make, a refit plan a mesh without the tree's triangles, a
+/// refit too few vertices or a plan made for another tree.
+#[test]
+fn fast_build_and_refit_refuse_mismatched_inputs() {
+    use emc_cpu::trace::refit::RefitPlan;
+    use emc_cpu::trace::wide_lbvh::{build_fast, FastScratch, FastTimes};
+    let s = scene::load_with("builtin:sphere", &SceneOptions::default().with_prims(500)).unwrap();
+    let layout: emc_cpu::auto::LayoutChoice =
+        "emc32-var".parse::<emc_core::LayoutSpec>().unwrap().into();
+    for leaf in [0, 9] {
+        let r = build_fast::<8>(
+            &s.vertices,
+            &s.indices,
+            &layout,
+            leaf,
+            &mut FastScratch::default(),
+            &mut Vec::new(),
+            &mut Vec::new(),
+            &mut FastTimes::default(),
+        );
+        assert!(
+            matches!(r, Err(TraceError::FastLeafSize { given, max: 8 }) if given == leaf),
+            "leaf size {leaf}: {r:?}"
+        );
+    }
+    let a = Accel::build(&s.vertices, &s.indices, &BuildOptions::preset(Preset::Fast)).unwrap();
+    let mut bvh = a.wide_bvh().clone();
+    let n = s.indices.len();
+    assert!(matches!(
+        RefitPlan::new(&bvh, &s.indices[..n / 2]),
+        Err(TraceError::MissingTriangle { triangles, .. }) if triangles == n / 2
+    ));
+    let mut plan = RefitPlan::new(&bvh, &s.indices).unwrap();
+    let few = &s.vertices[..s.vertices.len() / 2];
+    assert!(matches!(
+        bvh.refit(&mut plan, few, 1.0),
+        Err(TraceError::BadIndex { vertices, .. }) if vertices == few.len()
+    ));
+    let other = Accel::build(
+        &s.vertices,
+        &s.indices,
+        &BuildOptions::preset(Preset::Quality),
+    )
+    .unwrap();
+    let mut other_plan = RefitPlan::new(other.wide_bvh(), &s.indices).unwrap();
+    assert!(matches!(
+        bvh.refit(&mut other_plan, &s.vertices, 1.0),
+        Err(TraceError::RefitPlanMismatch)
+    ));
+    // The matching plan and vertices refit the tree to itself.
+    let max_abs = s
+        .vertices
+        .iter()
+        .map(|v| v.abs().max_element())
+        .fold(0.0f32, f32::max);
+    bvh.refit(&mut plan, &s.vertices, max_abs).unwrap();
+    assert!(bvh.nodes8 == a.wide_bvh().nodes8 && bvh.packets == a.wide_bvh().packets);
 }

@@ -49,7 +49,7 @@ use crate::bvh::Bvh;
 use crate::trace::intersect::{Hit, Ray};
 use crate::trace::refit::RefitPlan;
 use crate::trace::traverse::{
-    closest_valid, kernel_of, occluded_valid, Kernel, NodeTest, TraceStats,
+    closest_valid, kernel_of, occluded_valid, KernelChoice, NodeTest, TraceStats,
 };
 use crate::trace::wide::{
     CollapseScratch, Indexed, TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, WIDTH, WIDTH8,
@@ -404,8 +404,8 @@ pub struct Accel {
     indices: Vec<[u32; 3]>,
     opts: BuildOptions,
     test: NodeTest,
-    /// The traversal kernel of `test` on this tree (set after every build).
-    kernel: Kernel,
+    /// The traversal kernel of `test` on this tree (chosen again after every build).
+    kernel: KernelChoice,
     /// The context of [`Accel::build`] and [`Accel::rebuild`] (empty after
     /// [`Accel::build_in`] until a plain rebuild).
     ctx: BuildContext,
@@ -457,13 +457,14 @@ impl Accel {
             return Err(TraceError::Width(width));
         }
         let (bvh, mut vert_copy, mut index_copy) = ctx.spare.take();
+        let test = NodeTest::for_width(width);
         let mut a = Accel {
+            kernel: kernel_of(&bvh, test),
             bvh,
             vertices: Vec::new(),
             indices: Vec::new(),
             opts: *opts,
-            test: NodeTest::for_width(width),
-            kernel: Kernel::Scalar4,
+            test,
             ctx: BuildContext::new(),
             phases: FastTimes::default(),
             refit: None,
@@ -539,8 +540,7 @@ impl Accel {
             &self.indices,
         );
         self.refit = None;
-        // The same width and test, so the same kernel (a failed build leaves the tree empty,
-        // which every query checks first).
+        // Chosen again for whatever tree the build left (the same one after a success).
         self.kernel = kernel_of(&self.bvh, self.test);
         r?;
         crate::buffers::copy_par(&mut self.vertices, vertices);
@@ -563,12 +563,15 @@ impl Accel {
             });
         }
         let (bvh, indices, nv) = (&self.bvh, &self.indices, vertices.len());
-        let (plan, all_referenced) = &mut *self.refit.get_or_insert_with(|| {
-            (
-                RefitPlan::new(bvh, indices),
+        if self.refit.is_none() {
+            self.refit = Some((
+                RefitPlan::new(bvh, indices)?,
                 every_vertex_referenced(indices, nv),
-            )
-        });
+            ));
+        }
+        let Some((plan, all_referenced)) = &mut self.refit else {
+            unreachable!("made above")
+        };
         // The largest coordinate of the referenced vertices (as a build measures it): over
         // the vertex list when every vertex is referenced, else through the indices (which
         // also names the first triangle with a non-finite corner).
@@ -588,7 +591,7 @@ impl Accel {
             }
         };
         crate::buffers::copy_par(&mut self.vertices, vertices);
-        self.bvh.refit(plan, &self.vertices, max_abs);
+        self.bvh.refit(plan, &self.vertices, max_abs)?;
         self.debug_validate();
         Ok(())
     }

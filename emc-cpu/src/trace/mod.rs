@@ -62,6 +62,26 @@ pub enum TraceError {
     /// [`BuildOptions`] asks for leaves of zero triangles.
     #[error("the maximum leaf size must be at least 1")]
     ZeroLeafSize,
+    /// A tree's packet names a triangle the mesh does not have (a refit plan of a tree over
+    /// another mesh).
+    #[error("the tree names triangle {tri}, but the mesh has {triangles} triangles")]
+    MissingTriangle {
+        /// The triangle id.
+        tri: u32,
+        /// Number of triangles of the mesh.
+        triangles: usize,
+    },
+    /// A refit plan made for another tree.
+    #[error("the refit plan was made for a tree of another shape")]
+    RefitPlanMismatch,
+    /// The fast builder was asked for a largest leaf outside the sizes it makes.
+    #[error("the fast builder's largest leaf must be 1 to {max} triangles, not {given}")]
+    FastLeafSize {
+        /// The size asked for.
+        given: u32,
+        /// [`wide_lbvh::LEAF_MAX`].
+        max: u32,
+    },
     /// The codes could not be made (scene frame or encoder).
     #[error("encoding the triangles failed: {0}")]
     Encode(#[source] emc_core::Error),

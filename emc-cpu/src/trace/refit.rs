@@ -9,6 +9,7 @@ use glam::{Vec3, Vec3A};
 use rayon::prelude::*;
 
 use crate::trace::wide::{WideBvh, WideNodeN, EMPTY, LEAF, WIDTH, WIDTH8};
+use crate::trace::TraceError;
 
 /// Packets per rayon task.
 const PACKETS_PER_TASK: usize = 1024;
@@ -25,6 +26,10 @@ pub struct RefitPlan {
     /// Per packet, each lane's three vertex indices: read in packet order, where going
     /// through the triangle ids gathered the index list at random (48 bytes per packet).
     corners: Vec<[[u32; 3]; WIDTH]>,
+    /// The largest vertex index in `corners`, and the node counts of the trees the plan was
+    /// made for (what [`WideBvh::refit`] checks before it indexes anything).
+    max_vertex: u32,
+    nodes: (usize, usize),
     /// Scratch kept between refits (fresh buffers of this size cost page faults each time):
     /// the packets' boxes and the nodes' unpadded boxes.
     packet_boxes: Vec<Aabb>,
@@ -33,20 +38,40 @@ pub struct RefitPlan {
 
 impl RefitPlan {
     /// The levels of both trees of `bvh` (breadth first from node 0) over the mesh triangles
-    /// `indices` (every id of a packet names one).
-    pub fn new(bvh: &WideBvh, indices: &[[u32; 3]]) -> RefitPlan {
-        RefitPlan {
+    /// `indices`; fails when a packet names a triangle `indices` does not have.
+    pub fn new(bvh: &WideBvh, indices: &[[u32; 3]]) -> Result<RefitPlan, TraceError> {
+        let n = indices.len();
+        if let Some(id) = bvh
+            .packets
+            .iter()
+            .flat_map(|p| p.id)
+            .find(|&id| id as usize >= n)
+        {
+            return Err(TraceError::MissingTriangle {
+                tri: id,
+                triangles: n,
+            });
+        }
+        let corners: Vec<[[u32; 3]; WIDTH]> = bvh
+            .packets
+            .par_iter()
+            .map(|p| p.id.map(|id| indices[id as usize]))
+            .collect();
+        let max_vertex = corners
+            .par_iter()
+            .map(|c| c.iter().flatten().copied().max().unwrap_or(0))
+            .max()
+            .unwrap_or(0);
+        Ok(RefitPlan {
             order4: Order::of(&bvh.nodes),
             order8: Order::of(&bvh.nodes8),
             last: bvh.packets.iter().map(|p| p.last != 0).collect(),
-            corners: bvh
-                .packets
-                .par_iter()
-                .map(|p| p.id.map(|id| indices[id as usize]))
-                .collect(),
+            corners,
+            max_vertex,
+            nodes: (bvh.nodes.len(), bvh.nodes8.len()),
             packet_boxes: Vec::new(),
             node_boxes: Vec::new(),
-        }
+        })
     }
 }
 
@@ -242,7 +267,31 @@ impl WideBvh {
     /// of the triangles' corners (the culling pad and the traversal's slack follow it). The
     /// topology, node order and packet order stay; `plan` must be [`RefitPlan::new`] of this
     /// tree. Refitting to unmoved triangles gives the same nodes bit for bit.
-    pub fn refit(&mut self, plan: &mut RefitPlan, vertices: &[Vec3], max_abs: f32) {
+    pub fn refit(
+        &mut self,
+        plan: &mut RefitPlan,
+        vertices: &[Vec3],
+        max_abs: f32,
+    ) -> Result<(), TraceError> {
+        if plan.corners.len() != self.packets.len()
+            || plan.nodes != (self.nodes.len(), self.nodes8.len())
+        {
+            return Err(TraceError::RefitPlanMismatch);
+        }
+        if plan.max_vertex as usize >= vertices.len() {
+            let (p, lane, index) = plan
+                .corners
+                .iter()
+                .enumerate()
+                .flat_map(|(p, c)| (0..WIDTH).flat_map(move |l| c[l].map(|i| (p, l, i))))
+                .find(|&(_, _, i)| i as usize >= vertices.len())
+                .expect("the largest index is one of them");
+            return Err(TraceError::BadIndex {
+                tri: self.packets[p].id[lane] as usize,
+                index,
+                vertices: vertices.len(),
+            });
+        }
         let mut packet_boxes = std::mem::take(&mut plan.packet_boxes);
         packet_boxes.resize(self.packets.len(), Aabb::EMPTY);
         self.packets
@@ -285,5 +334,6 @@ impl WideBvh {
         );
         plan.node_boxes = boxes;
         plan.packet_boxes = packet_boxes;
+        Ok(())
     }
 }

@@ -66,7 +66,8 @@ pub struct CustomHit {
 /// The intersection callback of custom primitives: `f(ray, prim)` is the closest hit of
 /// primitive `prim` with `ray` in `[ray.tnear, ray.tfar]` (in the geometry's own space, so
 /// under an instance the ray is the transformed one), or `None`. Called only for primitives
-/// whose box the ray enters; an answer outside the interval is ignored.
+/// whose box the ray enters (the box as the tree holds it, padded by 2^-16 of the largest
+/// coordinate); an answer outside the interval is ignored.
 pub type Intersector = dyn Fn(&Ray, u32) -> Option<CustomHit> + Send + Sync;
 
 /// What a geometry is.
@@ -143,9 +144,10 @@ fn box_corners(boxes: impl IndexedParallelIterator<Item = Aabb>, corners: &mut V
         .for_each(|(c, b)| (c[0], c[1]) = (b.min, b.max));
 }
 
-/// A tree over boxes: an [`Accel`] (fast preset) over one degenerate triangle per box, with
-/// corners `(min, max, min)` (vertices `2i`, `2i + 1` of [`box_corners`]), whose own box is
-/// exactly the box; so triangle `i` stands for box `i`, and the tree's leaves name boxes.
+/// A tree over boxes: an [`Accel`] (fast preset, one box per leaf) over one degenerate
+/// triangle per box, with corners `(min, max, min)` (vertices `2i`, `2i + 1` of
+/// [`box_corners`]), whose own box is exactly the box; so triangle `i` stands for box `i`, and
+/// each leaf names one box.
 /// `tree`, when it holds as many boxes, is rebuilt in place (its buffers reused).
 fn box_tree(corners: &[Vec3], tree: &mut Option<Accel>) -> Result<(), TraceError> {
     let n = corners.len() / 2;

@@ -764,14 +764,6 @@ mod sse {
             self.slabs(|row| &node.planes[row], tfar)
         }
 
-        /// The slab tests of the four boxes a packet of box-tree items holds (corner 0 of
-        /// each degenerate triangle is its box's min, corner 1 its max: see `leaf_items`), the
-        /// same operations as [`SseRay::test`].
-        #[inline(always)]
-        pub fn test_items(&self, p: &TriPacket, tfar: f32) -> LaneHits {
-            self.slabs(|row| &p.v[(row >> 1) + 3 * (row & 1)], tfar)
-        }
-
         /// The slab test over plane rows: `plane(2a)` the four minima on axis `a`,
         /// `plane(2a + 1)` the maxima.
         #[inline(always)]
@@ -1856,11 +1848,10 @@ fn tree_of(bvh: &WideBvh, kind: NodeTest) -> (bool, NodeTest) {
     (eight, kind)
 }
 
-/// The loop a traversal runs: which tree, which node test (see [`tree_of`]), chosen per call
-/// from the tree and the (cached) CPU features, before any per-ray work, or once per structure
-/// (`Accel` keeps its own).
+/// The loop a traversal runs: which tree, which node test (see [`tree_of`]), chosen from the
+/// tree and the (cached) CPU features before any per-ray work.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub(crate) enum Kernel {
+enum Kernel {
     Avx512,
     Avx2,
     Sse,
@@ -1868,9 +1859,21 @@ pub(crate) enum Kernel {
     Scalar4,
 }
 
+/// A [`Kernel`] chosen by [`kernel_of`] for a tree on this CPU (the only way to make one, so a
+/// SIMD kernel always comes with the CPU's features): per call, or once per structure (an
+/// `Accel` keeps its own and chooses again after every build).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct KernelChoice(Kernel);
+
 /// The kernel of a traversal asked for `kind` in `bvh`.
 #[inline(always)]
-pub(crate) fn kernel_of(bvh: &WideBvh, kind: NodeTest) -> Kernel {
+pub(crate) fn kernel_of(bvh: &WideBvh, kind: NodeTest) -> KernelChoice {
+    KernelChoice(kernel_for(bvh, kind))
+}
+
+/// [`kernel_of`]'s choice.
+#[inline(always)]
+fn kernel_for(bvh: &WideBvh, kind: NodeTest) -> Kernel {
     match tree_of(bvh, kind) {
         (true, NodeTest::Avx2) if kind == NodeTest::Avx512 && avx512_available() => Kernel::Avx512,
         (true, NodeTest::Avx2) if avx2_available() => Kernel::Avx2,
@@ -1905,7 +1908,7 @@ pub fn closest<const STATS: bool>(
 pub(crate) fn closest_valid<const STATS: bool>(
     bvh: &WideBvh,
     ray: &Ray,
-    kernel: Kernel,
+    kernel: KernelChoice,
     stats: &mut TraceStats,
 ) -> Option<Hit> {
     debug_assert!(ray.is_valid());
@@ -1914,7 +1917,7 @@ pub(crate) fn closest_valid<const STATS: bool>(
     }
     // Each kernel is its own function that makes the ray's constants itself: with its target
     // features, and without the other kernels' registers and stack in its frame.
-    match kernel {
+    match kernel.0 {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `kernel_of` picks `Avx512` only when the CPU has AVX-512 F/VL/DQ and AVX2.
         Kernel::Avx512 => unsafe { closest_avx512::<STATS>(bvh, ray, stats) },
@@ -2059,55 +2062,12 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     v.hit()
 }
 
-/// The items of box-tree leaf `code` (see [`closest_items`]) whose boxes the ray enters
-/// within `cull()` (asked afresh for every packet), in lane order, each id with its entry
-/// distance. Boxes are read back from the items' degenerate triangles (corner 0 is the box's
-/// min, corner 1 its max) and tested four at a time (SSE) or one by one (the same answers).
-#[inline(always)]
-fn leaf_items(
-    bvh: &WideBvh,
-    code: u32,
-    r: &PreRay,
-    #[cfg(target_arch = "x86_64")] sse: &sse::SseRay,
-    cull: impl Fn() -> f32,
-    mut f: impl FnMut(u32, f32),
-) {
-    let mut pi = (code & !LEAF) as usize;
-    loop {
-        let p = &bvh.packets[pi];
-        #[cfg(target_arch = "x86_64")]
-        {
-            let _ = r;
-            let (mask, dist) = sse.test_items(p, cull());
-            let mut m = mask & ((1u32 << p.count) - 1);
-            while m != 0 {
-                let lane = m.trailing_zeros() as usize;
-                m &= m - 1;
-                f(p.id[lane], dist[lane]);
-            }
-        }
-        #[cfg(not(target_arch = "x86_64"))]
-        for lane in 0..p.count as usize {
-            let v = &p.v;
-            let min = [v[0][lane], v[1][lane], v[2][lane]];
-            let max = [v[3][lane], v[4][lane], v[5][lane]];
-            if let Some(d) = slab_test(r, min, max, cull()) {
-                f(p.id[lane], d);
-            }
-        }
-        if p.last != 0 {
-            return;
-        }
-        pi += 1;
-    }
-}
-
 /// The item-tree walk `$walk` (generic over width and node test) of `$ray` in `$bvh` with the
 /// kernel `$kind` resolves to (see [`kernel_of`]): the SIMD ones through their target-feature
 /// functions `$avx512` and `$avx2`, which make the ray's constants themselves.
 macro_rules! items_by_kernel {
     ($bvh:ident, $ray:ident, $kind:ident, $visit:ident, $walk:ident, $avx512:ident, $avx2:ident) => {
-        match kernel_of($bvh, $kind) {
+        match kernel_for($bvh, $kind) {
             #[cfg(target_arch = "x86_64")]
             // SAFETY: `kernel_of` picks `Avx512` only when the CPU has AVX-512 F/VL/DQ and AVX2.
             Kernel::Avx512 => unsafe { $avx512($bvh, $ray, $visit) },
@@ -2132,15 +2092,12 @@ macro_rules! items_by_kernel {
     };
 }
 
-/// Items of one leaf sorted by entry distance before they are visited (a leaf of the fast
-/// builder holds at most eight; more are visited as they come).
-const LEAF_ITEMS: usize = 16;
-
-/// The closest-hit walk over a tree of items' boxes (a [`WideBvh`] built over one degenerate
-/// triangle per item whose box is the item's: see `trace::scene`), in the same order and with
-/// the same culling as a triangle tree: `visit(id, best)` tests item `id` against the ray up to
-/// the best distance so far and returns the new best distance (`best` when nothing closer).
-/// The ray must be valid.
+/// The closest-hit walk over a tree of items' boxes (a [`WideBvh`] of the fast builder at leaf
+/// size 1 over one degenerate triangle per item whose box is the item's, so one item per leaf:
+/// see `trace::scene`), in the same order and with the same culling as a triangle tree: the
+/// node test is each item's box test, and `visit(id, best)` tests item `id` against the ray up
+/// to the best distance so far and returns the new best distance (`best` when nothing closer).
+/// The ray must be valid. Panics on a tree with a leaf of several items.
 #[inline]
 pub(crate) fn closest_items(
     bvh: &WideBvh,
@@ -2148,6 +2105,10 @@ pub(crate) fn closest_items(
     kind: NodeTest,
     mut visit: impl FnMut(u32, f32) -> f32,
 ) {
+    assert_eq!(
+        bvh.leaves, bvh.triangles,
+        "an item tree has one item per leaf"
+    );
     if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
         return;
     }
@@ -2173,62 +2134,15 @@ fn closest_items_in<const W: usize, L: Lanes<W>>(
     visit: &mut impl FnMut(u32, f32) -> f32,
 ) {
     let mut best = r.tfar;
-    let stats = &mut TraceStats::default();
-    if bvh.leaves == bvh.triangles {
-        // One item per leaf (a scene's top-level tree): the node test has tested the item's
-        // box, entered it within the slackened best distance and ordered it among its
-        // siblings; the item is visited as it is popped.
-        let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
-            best = visit(bvh.packets[(code & !LEAF) as usize].id[0], best);
-            best
-        });
-        lanes.closest_walk::<false>(bvh, nodes, r, stats, &mut leaf);
-        return;
-    }
-    let abs = abs_slack(bvh, r);
-    // Each item's own box is tested (an item is often far costlier than a box: a transformed
-    // ray through a whole tree, or a user's callback), and the entered ones are visited
-    // nearest first while they are within the slackened best distance.
-    // The leaves' item boxes take the SSE test (the walk's own, or made here for a scalar walk).
-    #[cfg(target_arch = "x86_64")]
-    let sse = lanes.sse().copied().unwrap_or_else(|| sse::SseRay::new(r));
+    // One item per leaf: the node test has tested the item's box, entered it within the
+    // slackened best distance and ordered it among its siblings; the item is visited as it
+    // is popped (an item is often far costlier than a box: a transformed ray through a whole
+    // tree, or a user's callback).
     let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
-        let mut near = [(0.0f32, 0u32); LEAF_ITEMS];
-        let mut n = 0;
-        let b = best;
-        leaf_items(
-            bvh,
-            code,
-            r,
-            #[cfg(target_arch = "x86_64")]
-            &sse,
-            || slack(b, abs),
-            |id, d| {
-                if n == LEAF_ITEMS {
-                    // Past the buffer (never with the fast builder's leaves): visited as
-                    // they come, which only costs order.
-                    let t = visit(id, best);
-                    best = best.min(t);
-                    return;
-                }
-                let mut j = n;
-                while j > 0 && near[j - 1].0 > d {
-                    near[j] = near[j - 1];
-                    j -= 1;
-                }
-                near[j] = (d, id);
-                n += 1;
-            },
-        );
-        for &(d, id) in &near[..n] {
-            if d > slack(best, abs) {
-                break;
-            }
-            best = visit(id, best);
-        }
+        best = visit(bvh.packets[(code & !LEAF) as usize].id[0], best);
         best
     });
-    lanes.closest_walk::<false>(bvh, nodes, r, stats, &mut leaf);
+    lanes.closest_walk::<false>(bvh, nodes, r, &mut TraceStats::default(), &mut leaf);
 }
 
 /// The closest-hit walk over one tree: children nearest first, a node skipped when its entry
@@ -2369,14 +2283,14 @@ pub fn occluded<const STATS: bool>(
 pub(crate) fn occluded_valid<const STATS: bool>(
     bvh: &WideBvh,
     ray: &Ray,
-    kernel: Kernel,
+    kernel: KernelChoice,
     stats: &mut TraceStats,
 ) -> bool {
     debug_assert!(ray.is_valid());
     if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
         return false;
     }
-    match kernel {
+    match kernel.0 {
         #[cfg(target_arch = "x86_64")]
         // SAFETY: `kernel_of` picks `Avx512` only when the CPU has AVX-512 F/VL/DQ and AVX2.
         Kernel::Avx512 => unsafe { occluded_avx512::<STATS>(bvh, ray, stats) },
@@ -2423,8 +2337,8 @@ fn occluded_in<const W: usize, const STATS: bool, L: Lanes<W>>(
     lanes.occluded_walk::<STATS>(bvh, nodes, r, stats, &mut v)
 }
 
-/// True when `visit(id)` is true for an item of the box tree `bvh` whose box the ray enters
-/// (see [`closest_items`]); the ray must be valid.
+/// True when `visit(id)` is true for an item of the box tree `bvh` (one item per leaf) whose
+/// box the ray enters (see [`closest_items`]); the ray must be valid.
 #[inline]
 pub(crate) fn occluded_items(
     bvh: &WideBvh,
@@ -2432,6 +2346,10 @@ pub(crate) fn occluded_items(
     kind: NodeTest,
     mut visit: impl FnMut(u32) -> bool,
 ) -> bool {
+    assert_eq!(
+        bvh.leaves, bvh.triangles,
+        "an item tree has one item per leaf"
+    );
     if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
         return false;
     }
@@ -2456,32 +2374,10 @@ fn occluded_items_in<const W: usize, L: Lanes<W>>(
     lanes: &L,
     visit: &mut impl FnMut(u32) -> bool,
 ) -> bool {
-    let stats = &mut TraceStats::default();
-    if bvh.leaves == bvh.triangles {
-        // One item per leaf: its box was the node test's (see `closest_items_in`).
-        let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
-            visit(bvh.packets[(code & !LEAF) as usize].id[0])
-        });
-        return lanes.occluded_walk::<false>(bvh, nodes, r, stats, &mut leaf);
-    }
-    let cull = slack(r.tfar, abs_slack(bvh, r));
-    // The leaves' item boxes take the SSE test (the walk's own, or made here for a scalar walk).
-    #[cfg(target_arch = "x86_64")]
-    let sse = lanes.sse().copied().unwrap_or_else(|| sse::SseRay::new(r));
-    let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
-        let mut hit = false;
-        leaf_items(
-            bvh,
-            code,
-            r,
-            #[cfg(target_arch = "x86_64")]
-            &sse,
-            || cull,
-            |id, _| hit = hit || visit(id),
-        );
-        hit
-    });
-    lanes.occluded_walk::<false>(bvh, nodes, r, stats, &mut leaf)
+    // One item per leaf: its box was the node test's (see `closest_items_in`).
+    let mut leaf =
+        FnLeaf(|code: u32, _: &mut TraceStats| visit(bvh.packets[(code & !LEAF) as usize].id[0]));
+    lanes.occluded_walk::<false>(bvh, nodes, r, &mut TraceStats::default(), &mut leaf)
 }
 
 /// The any-hit walk over one tree: `leaf(code, stats)` is true when leaf `code` holds a hit,

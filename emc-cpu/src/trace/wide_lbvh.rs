@@ -990,8 +990,8 @@ pub struct FastTimes {
 
 /// The fast build: a `W`-wide tree over the mesh (`W` = 4 or 8) into `bvh`'s buffers, codes of
 /// `layout`, leaves of at most `leaf_max` triangles (`1..=`[`LEAF_MAX`]), scratch from
-/// `scratch`. Fails on an empty mesh, an index naming no vertex, a non-finite vertex, or too
-/// many triangles.
+/// `scratch`. Fails on a leaf size outside that range, an empty mesh, an index naming no
+/// vertex, a non-finite vertex, or too many triangles.
 #[allow(clippy::too_many_arguments)]
 pub fn build_fast<const W: usize>(
     vertices: &[Vec3],
@@ -1006,7 +1006,12 @@ pub fn build_fast<const W: usize>(
     use crate::trace::wide::MAX_TRIANGLES;
     use std::time::Instant;
     let n = indices.len();
-    assert!((1..=LEAF_MAX).contains(&leaf_max), "leaf size {leaf_max}");
+    if !(1..=LEAF_MAX).contains(&leaf_max) {
+        return Err(TraceError::FastLeafSize {
+            given: leaf_max,
+            max: LEAF_MAX,
+        });
+    }
     if n == 0 {
         return Err(TraceError::NoTriangles);
     }
