@@ -2092,6 +2092,22 @@ macro_rules! items_by_kernel {
     };
 }
 
+/// Panics unless every leaf of `bvh` holds one item (the shape [`closest_items`] and
+/// [`occluded_items`] rely on).
+#[inline(always)]
+fn assert_item_tree(bvh: &WideBvh) {
+    assert_eq!(
+        bvh.leaves, bvh.triangles,
+        "an item tree has one item per leaf"
+    );
+}
+
+/// The item of leaf `code` of an item tree (one item per leaf).
+#[inline(always)]
+fn leaf_item(bvh: &WideBvh, code: u32) -> u32 {
+    bvh.packets[(code & !LEAF) as usize].id[0]
+}
+
 /// The closest-hit walk over a tree of items' boxes (a [`WideBvh`] of the fast builder at leaf
 /// size 1 over one degenerate triangle per item whose box is the item's, so one item per leaf:
 /// see `trace::scene`), in the same order and with the same culling as a triangle tree: the
@@ -2105,10 +2121,7 @@ pub(crate) fn closest_items(
     kind: NodeTest,
     mut visit: impl FnMut(u32, f32) -> f32,
 ) {
-    assert_eq!(
-        bvh.leaves, bvh.triangles,
-        "an item tree has one item per leaf"
-    );
+    assert_item_tree(bvh);
     if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
         return;
     }
@@ -2139,7 +2152,7 @@ fn closest_items_in<const W: usize, L: Lanes<W>>(
     // is popped (an item is often far costlier than a box: a transformed ray through a whole
     // tree, or a user's callback).
     let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| {
-        best = visit(bvh.packets[(code & !LEAF) as usize].id[0], best);
+        best = visit(leaf_item(bvh, code), best);
         best
     });
     lanes.closest_walk::<false>(bvh, nodes, r, &mut TraceStats::default(), &mut leaf);
@@ -2346,10 +2359,7 @@ pub(crate) fn occluded_items(
     kind: NodeTest,
     mut visit: impl FnMut(u32) -> bool,
 ) -> bool {
-    assert_eq!(
-        bvh.leaves, bvh.triangles,
-        "an item tree has one item per leaf"
-    );
+    assert_item_tree(bvh);
     if bvh.nodes.is_empty() && bvh.nodes8.is_empty() {
         return false;
     }
@@ -2375,8 +2385,7 @@ fn occluded_items_in<const W: usize, L: Lanes<W>>(
     visit: &mut impl FnMut(u32) -> bool,
 ) -> bool {
     // One item per leaf: its box was the node test's (see `closest_items_in`).
-    let mut leaf =
-        FnLeaf(|code: u32, _: &mut TraceStats| visit(bvh.packets[(code & !LEAF) as usize].id[0]));
+    let mut leaf = FnLeaf(|code: u32, _: &mut TraceStats| visit(leaf_item(bvh, code)));
     lanes.occluded_walk::<false>(bvh, nodes, r, &mut TraceStats::default(), &mut leaf)
 }
 
