@@ -712,3 +712,43 @@ fn fast_build_and_refit_refuse_mismatched_inputs() {
     bvh.refit(&mut plan, &s.vertices, max_abs).unwrap();
     assert!(bvh.nodes8 == a.wide_bvh().nodes8 && bvh.packets == a.wide_bvh().packets);
 }
+
+#[test]
+fn the_balanced_collapse_planned_during_restructuring_equals_one_planned_after() {
+    // The balanced build plans the wide collapse inside the treelet restructuring's last
+    // pass, node by node; planning the finished BVH2 afterwards (the library's collapse of
+    // any BVH2) must give the same wide tree, node for node, at both widths and any thread
+    // count.
+    use emc_cpu::trace::api::build_bvh2;
+    use emc_cpu::trace::WideBvh;
+    for (spec, prims) in [
+        ("builtin:mixed", 60_000),
+        ("builtin:hard-needles", 5_000),
+        ("builtin:hard-huge", 5_000),
+        ("builtin:hard-duplicates", 5_000),
+    ] {
+        let s = scene::load_with(spec, &SceneOptions::default().with_prims(prims)).unwrap();
+        let tris = triangles(&s);
+        for width in [4, 8] {
+            let opts = BuildOptions::preset(Preset::Balanced).with_width(width);
+            let bvh2 = build_bvh2(&tris, &opts).unwrap();
+            let after = WideBvh::from_bvh2_width(&bvh2, &tris, width).unwrap();
+            for threads in [1, 2] {
+                let pool = rayon::ThreadPoolBuilder::new()
+                    .num_threads(threads)
+                    .build()
+                    .unwrap();
+                let a = pool
+                    .install(|| Accel::from_triangles(tris.clone(), &opts))
+                    .unwrap();
+                let during = a.wide_bvh();
+                assert!(
+                    during.nodes == after.nodes
+                        && during.nodes8 == after.nodes8
+                        && during.packets == after.packets,
+                    "{spec} {width}-wide, {threads} threads: another tree"
+                );
+            }
+        }
+    }
+}

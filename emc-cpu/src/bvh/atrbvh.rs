@@ -207,6 +207,7 @@ pub fn restructure(bvh: &mut Bvh, aabbs: &[Aabb], cfg: &AtrConfig) -> Result<Atr
         true,
         false,
         &mut AtrScratch::default(),
+        &Unwatched,
     )
 }
 
@@ -225,6 +226,7 @@ pub fn restructure_quiet(
         true,
         false,
         &mut AtrScratch::default(),
+        &Unwatched,
     )
 }
 
@@ -239,6 +241,19 @@ pub(crate) fn restructure_built(
     cfg: &AtrConfig,
     scratch: &mut AtrScratch,
 ) -> Result<AtrStats, AtrError> {
+    restructure_built_watched(bvh, aabbs, cfg, scratch, &Unwatched)
+}
+
+/// [`restructure_built`] that shows `watch` every node of the output as it becomes final
+/// (see [`FinalNodes`]), so that work over the finished tree can be done while its nodes are
+/// still in the cache. With `cfg.iterations == 0` no pass runs and `watch` sees nothing.
+pub(crate) fn restructure_built_watched(
+    bvh: &mut Bvh,
+    aabbs: &[Aabb],
+    cfg: &AtrConfig,
+    scratch: &mut AtrScratch,
+    watch: &impl FinalNodes,
+) -> Result<AtrStats, AtrError> {
     restructure_with(
         bvh,
         aabbs,
@@ -247,7 +262,30 @@ pub(crate) fn restructure_built(
         cfg!(debug_assertions),
         true,
         scratch,
+        watch,
     )
+}
+
+/// What the last pass of a restructuring shows of the output tree: every node, children
+/// before parents, each time it is written; the last time a node is shown it is final. A node
+/// is shown on the thread that owns its subtree at that moment (the pass's ownership rule), so
+/// a watcher may keep per-node data in shared arrays without locks: a node's own entry is
+/// written only by that thread, and its children's entries were written before, by threads
+/// whose work the pass's counters have made visible.
+pub(crate) trait FinalNodes: Sync {
+    /// Node `i` is `node` (a leaf or an inner node whose children were shown before).
+    ///
+    /// # Safety
+    /// Called only by the pass, under the ownership rule above.
+    unsafe fn node(&self, i: u32, node: &Node);
+}
+
+/// A pass nobody watches.
+pub(crate) struct Unwatched;
+
+impl FinalNodes for Unwatched {
+    #[inline(always)]
+    unsafe fn node(&self, _: u32, _: &Node) {}
 }
 
 /// The per-node arrays of a restructuring (parents, bookkeeping, leaves, arrival counters),
@@ -261,6 +299,7 @@ pub struct AtrScratch {
     counters: Vec<AtomicU32>,
 }
 
+#[allow(clippy::too_many_arguments)]
 fn restructure_with(
     bvh: &mut Bvh,
     aabbs: &[Aabb],
@@ -269,6 +308,7 @@ fn restructure_with(
     validate: bool,
     single_exact: bool,
     scratch: &mut AtrScratch,
+    watch: &impl FinalNodes,
 ) -> Result<AtrStats, AtrError> {
     cfg.check()?;
     if validate {
@@ -353,27 +393,27 @@ fn restructure_with(
             counters
                 .par_iter()
                 .for_each(|c| c.store(0, Ordering::Relaxed));
-            let pass = Pass {
-                nodes: SharedSlice::new(&mut bvh.nodes),
-                aux: SharedSlice::new(aux),
-                counters,
-                serial,
-                gamma: cfg.gamma_at(it),
-                size: cfg.treelet_size,
-                ct: cfg.ct,
-                ci: cfg.ci,
-            };
-            // The climbs may run in any order (the tree does not depend on it).
-            let (formed, improved) = if serial {
-                leaves
-                    .iter()
-                    .map(|&leaf| pass.climb(leaf))
-                    .fold((0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+            let gamma = cfg.gamma_at(it);
+            // The same pass, shown to `watch` when it is the last.
+            macro_rules! pass {
+                ($watch:expr) => {
+                    Pass {
+                        nodes: SharedSlice::new(&mut bvh.nodes),
+                        aux: SharedSlice::new(aux),
+                        counters,
+                        serial,
+                        gamma,
+                        size: cfg.treelet_size,
+                        ct: cfg.ct,
+                        ci: cfg.ci,
+                        watch: $watch,
+                    }
+                };
+            }
+            let (formed, improved) = if it + 1 == cfg.iterations {
+                run_pass(&pass!(watch), leaves)
             } else {
-                leaves
-                    .par_iter()
-                    .map(|&leaf| pass.climb(leaf))
-                    .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+                run_pass(&pass!(&Unwatched), leaves)
             };
             stats.treelets_formed += formed;
             stats.treelets_improved += improved;
@@ -387,6 +427,10 @@ fn restructure_with(
             root.bounds = bvh.prim_indices[f..f + c]
                 .iter()
                 .fold(Aabb::EMPTY, |b, &p| b.union(&aabbs[p as usize]));
+            if cfg.iterations > 0 {
+                // SAFETY: no pass runs: this thread owns the whole (one-node) tree.
+                unsafe { watch.node(0, root) };
+            }
         }
         stats.per_iteration = vec![(0, 0); cfg.iterations as usize];
     }
@@ -394,6 +438,22 @@ fn restructure_with(
         stats.sah_after = sah_cost(bvh, k);
     }
     Ok(stats)
+}
+
+/// Every climb of `pass` (in any order: the tree does not depend on it); returns the treelets
+/// (formed, improved).
+fn run_pass<W: FinalNodes>(pass: &Pass<'_, W>, leaves: &[u32]) -> (u64, u64) {
+    if pass.serial {
+        leaves
+            .iter()
+            .map(|&leaf| pass.climb(leaf))
+            .fold((0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+    } else {
+        leaves
+            .par_iter()
+            .map(|&leaf| pass.climb(leaf))
+            .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1))
+    }
 }
 
 /// `v` as `n` counters holding `value`, its allocation reused (set in parallel).
@@ -457,7 +517,7 @@ impl<'a, T: Copy> SharedSlice<'a, T> {
 }
 
 /// One bottom-up pass over the tree.
-struct Pass<'a> {
+struct Pass<'a, W> {
     nodes: SharedSlice<'a, Node>,
     aux: SharedSlice<'a, Aux>,
     counters: &'a [AtomicU32],
@@ -467,6 +527,8 @@ struct Pass<'a> {
     size: usize,
     ct: f64,
     ci: f64,
+    /// Shown every node the pass writes.
+    watch: &'a W,
 }
 
 /// A treelet under construction: its leaves (node indices) and its inner-node slots, the root
@@ -478,7 +540,7 @@ struct Treelet {
     n_slots: usize,
 }
 
-impl Pass<'_> {
+impl<W: FinalNodes> Pass<'_, W> {
     /// Start at `leaf`, climb while this thread is the second to arrive; returns the treelets
     /// (formed, improved) on the way.
     fn climb(&self, leaf: u32) -> (u64, u64) {
@@ -490,6 +552,7 @@ impl Pass<'_> {
             a.count = node.count();
             a.cost = self.ci * node.bounds.area_f64() * node.count() as f64;
             self.aux.set(leaf, a);
+            self.watch.node(leaf, &node);
         }
         let (mut formed, mut improved) = (0u64, 0u64);
         let mut cur = leaf;
@@ -540,19 +603,27 @@ impl Pass<'_> {
             let bounds = nl.bounds.union(&nr.bounds);
             let count = al.count.saturating_add(ar.count);
             let cost = self.ct * bounds.area_f64() + al.cost + ar.cost;
-            self.nodes.set(p, Node::inner(bounds, l, r));
+            let refit = Node::inner(bounds, l, r);
+            self.nodes.set(p, refit);
             let mut ap = self.aux.get(p);
             ap.count = count;
             ap.cost = cost;
             self.aux.set(p, ap);
             if count < self.gamma {
+                self.watch.node(p, &refit);
                 return (false, false);
             }
             let t = self.form_treelet(p, l, r);
             if t.n_leaves < 3 {
+                self.watch.node(p, &refit);
                 return (false, false);
             }
-            (true, self.recluster(p, &t, cost))
+            // A rewritten treelet shows its nodes as it writes them.
+            let improved = self.recluster(p, &t, cost);
+            if !improved {
+                self.watch.node(p, &refit);
+            }
+            (true, improved)
         }
     }
 
@@ -705,7 +776,10 @@ impl Pass<'_> {
             // SAFETY: `slot`, `left` and `right` are treelet slots or treelet leaves, all in
             // `p`'s subtree.
             unsafe {
-                self.nodes.set(slot, Node::inner(b, left, right));
+                let node = Node::inner(b, left, right);
+                self.nodes.set(slot, node);
+                // Its children are treelet leaves (unchanged) or earlier merges (shown).
+                self.watch.node(slot, &node);
                 let mut a = self.aux.get(slot);
                 a.cost = cost;
                 a.count = count;
@@ -796,6 +870,72 @@ mod tests {
             assert_eq!(a, b);
             assert!(a.expect("valid tree").treelets_improved > 0);
             assert_eq!(fresh, reused, "{n} primitives, reversed {reversed}");
+        }
+    }
+
+    /// Records every node the last pass shows, in order.
+    struct Recorder(std::sync::Mutex<Vec<(u32, Node)>>);
+
+    impl FinalNodes for Recorder {
+        unsafe fn node(&self, i: u32, node: &Node) {
+            self.0.lock().expect("not poisoned").push((i, *node));
+        }
+    }
+
+    #[test]
+    fn the_last_pass_shows_every_node_final_and_children_first() {
+        for (n, seed, reversed, iterations, threads) in [
+            (700, 5, false, 2, 1),
+            (900, 6, true, 2, 3),
+            (400, 7, false, 1, 2),
+            (1, 8, false, 2, 1),
+            (2, 9, true, 3, 1),
+        ] {
+            let (bvh, aabbs) = tree(n, seed, reversed);
+            let cfg = AtrConfig::default().with_iterations(iterations);
+            let (mut plain, mut watched) = (bvh.clone(), bvh);
+            let watch = Recorder(std::sync::Mutex::new(Vec::new()));
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .expect("a pool");
+            pool.install(|| {
+                restructure_built(&mut plain, &aabbs, &cfg, &mut AtrScratch::default())
+                    .expect("valid tree");
+                restructure_built_watched(
+                    &mut watched,
+                    &aabbs,
+                    &cfg,
+                    &mut AtrScratch::default(),
+                    &watch,
+                )
+                .expect("valid tree");
+            });
+            // Watching changes nothing.
+            assert_eq!(plain, watched, "{n} primitives");
+            let shown = watch.0.into_inner().expect("not poisoned");
+            // The last time each node is shown, it is the output's node, and each inner node's
+            // children were last shown before it.
+            let mut last = vec![usize::MAX; watched.nodes.len()];
+            for (k, &(i, _)) in shown.iter().enumerate() {
+                last[i as usize] = k;
+            }
+            for (i, node) in watched.nodes.iter().enumerate() {
+                let k = last[i];
+                assert_ne!(k, usize::MAX, "node {i} of {n} never shown");
+                assert_eq!(shown[k].1, *node, "node {i} shown other than final");
+                if !node.is_leaf() {
+                    assert!(last[node.left() as usize] < k && last[node.right() as usize] < k);
+                }
+            }
+            // Whenever a node is shown, its children as shown then were shown before.
+            let mut seen = vec![false; watched.nodes.len()];
+            for &(i, node) in &shown {
+                if !node.is_leaf() {
+                    assert!(seen[node.left() as usize] && seen[node.right() as usize]);
+                }
+                seen[i as usize] = true;
+            }
         }
     }
 }

@@ -41,7 +41,10 @@ use emc_core::{Aabb, LayoutSpec};
 use crate::auto::LayoutChoice;
 
 use crate::build::{build_aabbs_inline_in, BuildArena, Builder};
-use crate::bvh::atrbvh::{restructure_built as restructure_atr, AtrConfig, AtrScratch};
+use crate::bvh::atrbvh::{
+    restructure_built as restructure_atr, restructure_built_watched as restructure_atr_watched,
+    AtrConfig, AtrScratch,
+};
 use crate::bvh::binned_sah::{build_binned_sah_leaves_in, BinnedScratch, LeafRule, DEFAULT_BINS};
 use crate::bvh::collapse::collapse_bvh;
 use crate::bvh::refit::CollapseParams;
@@ -52,7 +55,8 @@ use crate::trace::traverse::{
     closest_valid, kernel_of, occluded_valid, KernelChoice, NodeTest, TraceStats,
 };
 use crate::trace::wide::{
-    CollapseScratch, Indexed, TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, WIDTH, WIDTH8,
+    CollapseScratch, Indexed, Prep, TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, WIDTH,
+    WIDTH8,
 };
 use crate::trace::wide_lbvh::{build_fast, mesh_boxes, FastScratch, FastTimes, LEAF_MAX};
 use crate::trace::TraceError;
@@ -267,8 +271,6 @@ pub struct BuildContext {
     arena: BuildArena,
     /// The wide collapse's plans and work lists.
     collapse: CollapseScratch,
-    /// The depth-first copy of a restructured BVH2 that the collapse walks.
-    depth_first: Bvh,
     /// The treelet restructuring's per-node arrays (balanced preset).
     atr: AtrScratch,
     /// The buffers dropped structures built in this context gave back.
@@ -296,7 +298,6 @@ impl BuildContext {
             self.binned = BinnedScratch::default();
             self.arena = BuildArena::default();
             self.collapse = CollapseScratch::default();
-            self.depth_first = Bvh::default();
             self.atr = AtrScratch::default();
         }
     }
@@ -732,7 +733,7 @@ fn build_over(
     vertices: &[Vec3],
     indices: &[[u32; 3]],
 ) -> Result<(), TraceError> {
-    let (_, layout, restructured) = opts.resolve();
+    let (_, layout, _) = opts.resolve();
     // The radix tree (Karras = Apetrei) without restructuring goes straight to the wide
     // tree; the other builders make a BVH2 that is then collapsed.
     *phases = FastTimes::default();
@@ -773,42 +774,54 @@ fn build_over(
     let bounds = mesh_boxes(vertices, indices, &mut ctx.aabbs)?;
     let p = bounds.prim;
     let max_abs = p.min.abs().max_element().max(p.max.abs().max_element());
-    let bvh2 = bvh2_of_boxes(opts, ctx)?;
+    let bvh2 = bvh2_of_boxes(opts, ctx, Some(width))?;
     let mesh = Indexed { vertices, indices };
-    // Restructuring rewrote treelets in place, scattering each subtree's nodes: the collapse
-    // then walks a depth-first copy, planned while it is made (stanford-dragon balanced, one
-    // thread: 322 → 282 ms for the whole build).
-    let scattered = restructured && !bvh2.1 && opts.leaf_size.is_none();
-    let copy = scattered.then_some(&mut ctx.depth_first);
-    let r = bvh.rebuild_from_own_mesh(&bvh2.0, copy, mesh, max_abs, width, &mut ctx.collapse);
+    // Restructuring rewrote treelets in place, scattering each subtree's nodes over the
+    // arrays: its last pass planned the collapse node by node while they were in the cache
+    // (stanford-dragon balanced, one thread: 274 → 258 ms for the whole build, against a
+    // depth-first copy of the tree planned while it was made, which the collapse then read).
+    let prep = if bvh2.planned {
+        Prep::Planned
+    } else {
+        Prep::Fill
+    };
+    let r = bvh.rebuild_from_own_mesh(&bvh2.bvh, prep, mesh, max_abs, width, &mut ctx.collapse);
     ctx.recycle(bvh2);
     r
+}
+
+/// A BVH2 of `bvh2_of_boxes`: the tree, whether the binned builder made it (in its buffers),
+/// and whether the restructuring filled the collapse plan of the traced width on the way
+/// ([`Prep::Planned`]).
+struct Bvh2 {
+    bvh: Bvh,
+    binned: bool,
+    planned: bool,
 }
 
 impl BuildContext {
     /// Take back a finished BVH2's arrays: to the binned builder's buffers when it made them,
     /// else to the pipeline's.
-    fn recycle(&mut self, (bvh, binned): (Bvh, bool)) {
-        if binned {
-            self.binned.recycle(bvh);
+    fn recycle(&mut self, b: Bvh2) {
+        if b.binned {
+            self.binned.recycle(b.bvh);
         } else {
-            self.arena.recycle_bvh(bvh);
+            self.arena.recycle_bvh(b.bvh);
         }
     }
 }
 
 /// The BVH2 a preset and its overrides ask for, built by the LBVH / binned-SAH pipeline.
 pub fn build_bvh2(tris: &[[Vec3; 3]], opts: &BuildOptions) -> Result<Bvh, TraceError> {
-    build_bvh2_in(tris, opts, &mut BuildContext::new()).map(|b| b.0)
+    build_bvh2_in(tris, opts, &mut BuildContext::new()).map(|b| b.bvh)
 }
 
-/// [`build_bvh2`] in the buffers of `ctx`; true when the binned builder made the tree (in the
-/// binned buffers).
+/// [`build_bvh2`] in the buffers of `ctx`.
 fn build_bvh2_in(
     tris: &[[Vec3; 3]],
     opts: &BuildOptions,
     ctx: &mut BuildContext,
-) -> Result<(Bvh, bool), TraceError> {
+) -> Result<Bvh2, TraceError> {
     if tris.is_empty() {
         return Err(TraceError::NoTriangles);
     }
@@ -822,12 +835,18 @@ fn build_bvh2_in(
         tris.par_iter()
             .map(|t| Aabb::from_triangle(t[0], t[1], t[2])),
     );
-    bvh2_of_boxes(opts, ctx)
+    bvh2_of_boxes(opts, ctx, None)
 }
 
 /// The BVH2 `opts` ask for over the (checked, non-empty) triangle boxes in `ctx.aabbs`, in the
-/// buffers of `ctx` (the boxes stay there); true when the binned builder made it.
-fn bvh2_of_boxes(opts: &BuildOptions, ctx: &mut BuildContext) -> Result<(Bvh, bool), TraceError> {
+/// buffers of `ctx` (the boxes stay there). With `plan_width`, a restructured tree that keeps
+/// one triangle per leaf comes with the collapse plan of that width filled during the
+/// restructuring's last pass.
+fn bvh2_of_boxes(
+    opts: &BuildOptions,
+    ctx: &mut BuildContext,
+    plan_width: Option<usize>,
+) -> Result<Bvh2, TraceError> {
     let aabbs = &mut ctx.aabbs;
     let (builder, layout, restructure) = opts.resolve();
     let max_leaf = opts.leaf_size.unwrap_or(DEFAULT_LEAF_SIZE);
@@ -847,7 +866,11 @@ fn bvh2_of_boxes(opts: &BuildOptions, ctx: &mut BuildContext) -> Result<(Bvh, bo
             ci: collapse.ci,
         };
         return build_binned_sah_leaves_in(aabbs, DEFAULT_BINS, rule, &mut ctx.binned)
-            .map(|b| (b.bvh, true))
+            .map(|b| Bvh2 {
+                bvh: b.bvh,
+                binned: true,
+                planned: false,
+            })
             .map_err(|e| TraceError::Build(crate::build::BuildError::Binned(e)));
     }
     let threads = rayon::current_num_threads();
@@ -864,12 +887,30 @@ fn bvh2_of_boxes(opts: &BuildOptions, ctx: &mut BuildContext) -> Result<(Bvh, bo
     let out = build_aabbs_inline_in(std::mem::take(aabbs), &bopts, &mut ctx.arena)
         .map_err(TraceError::Build)?;
     *aabbs = out.aabbs;
+    let unplanned = |bvh| Bvh2 {
+        bvh,
+        binned: false,
+        planned: false,
+    };
     if !restructure {
-        return Ok((out.bvh, false));
+        return Ok(unplanned(out.bvh));
     }
     let mut bvh = out.bvh;
-    restructure_atr(&mut bvh, aabbs, &AtrConfig::default(), &mut ctx.atr)
-        .map_err(TraceError::Restructure)?;
+    let cfg = AtrConfig::default();
+    // The collapse plan is filled as the last pass finishes the nodes (it needs a pass, and
+    // the tree as the collapse will read it: one triangle per leaf).
+    let in_place = plan_width.filter(|_| opts.leaf_size.is_none() && cfg.iterations > 0);
+    if let Some(width) = in_place {
+        let watch = ctx.collapse.plan_in_place(bvh.nodes.len(), width);
+        restructure_atr_watched(&mut bvh, aabbs, &cfg, &mut ctx.atr, &watch)
+            .map_err(TraceError::Restructure)?;
+        return Ok(Bvh2 {
+            bvh,
+            binned: false,
+            planned: true,
+        });
+    }
+    restructure_atr(&mut bvh, aabbs, &cfg, &mut ctx.atr).map_err(TraceError::Restructure)?;
     // Without a leaf size of its own, the restructured tree keeps one triangle per leaf: the
     // wide collapse's cover DP chooses the leaves itself (up to eight triangles). An SAH leaf
     // collapse before it was measured to change nothing the DP chooses (same wide SAH and work
@@ -877,7 +918,7 @@ fn bvh2_of_boxes(opts: &BuildOptions, ctx: &mut BuildContext) -> Result<(Bvh, bo
     // 1.24 G instructions for a san-francisco build); after binned SAH it saves more than it
     // costs, so that path keeps it.
     if opts.leaf_size.is_none() {
-        return Ok((bvh, false));
+        return Ok(unplanned(bvh));
     }
-    Ok((collapse_bvh(&bvh, &collapse), false))
+    Ok(unplanned(collapse_bvh(&bvh, &collapse)))
 }

@@ -6,6 +6,8 @@
 use emc_core::Aabb;
 use glam::{Vec3, Vec3A};
 
+use crate::bvh::atrbvh::FinalNodes;
+use crate::bvh::node::Node;
 use crate::bvh::Bvh;
 use crate::trace::traverse::prefetch;
 use crate::trace::TraceError;
@@ -409,7 +411,7 @@ impl WideBvh {
             .iter()
             .flatten()
             .fold(0.0f32, |m, v| m.max(v.abs().max_element()));
-        WideBvh::collapse_checked(bvh, tris, max_abs, four, eight, old, scratch, None)
+        WideBvh::collapse_checked(bvh, tris, max_abs, four, eight, old, scratch, Prep::Fill)
     }
 
     /// [`WideBvh::from_bvh2_width`] into this structure, for a BVH2 from this crate's own
@@ -419,13 +421,11 @@ impl WideBvh {
     /// rebuild faults no fresh pages for them and frees nothing). The BVH2's validation runs
     /// in debug builds only (the tests validate the wide trees), because those builders place
     /// every triangle once and bound it by construction. On an error the structure is left
-    /// empty. With `copy`, the collapse first copies `bvh` depth-first into it (planning the
-    /// traced width during the copy: see [`Bvh::depth_first_into_with`]) and then reads the
-    /// copy, for a BVH2 whose subtrees are scattered over its arrays.
+    /// empty. `prep` says how the plan is made (see [`Prep`]).
     pub(crate) fn rebuild_from_own_mesh(
         &mut self,
         bvh: &Bvh,
-        copy: Option<&mut Bvh>,
+        prep: Prep,
         mesh: Indexed<'_>,
         max_abs: f32,
         width: usize,
@@ -446,13 +446,12 @@ impl WideBvh {
         }
         let old = std::mem::replace(self, WideBvh::empty());
         let (four, eight) = (width != WIDTH8, width != WIDTH);
-        *self = WideBvh::collapse_checked(bvh, &mesh, max_abs, four, eight, old, scratch, copy)?;
+        *self = WideBvh::collapse_checked(bvh, &mesh, max_abs, four, eight, old, scratch, prep)?;
         Ok(())
     }
 
     /// The collapse of a BVH2 checked against `tris` (at least one triangle, every corner
-    /// finite, largest absolute coordinate `max_abs`); with `copy`, of the depth-first copy of
-    /// the BVH2 made into it (see [`WideBvh::rebuild_from_own_mesh`]).
+    /// finite, largest absolute coordinate `max_abs`), its plan made as `prep` says.
     #[allow(clippy::too_many_arguments)]
     fn collapse_checked<T: Corners + ?Sized>(
         bvh: &Bvh,
@@ -462,7 +461,7 @@ impl WideBvh {
         eight: bool,
         old: WideBvh,
         scratch: &mut CollapseScratch,
-        copy: Option<&mut Bvh>,
+        prep: Prep,
     ) -> Result<WideBvh, TraceError> {
         // Child boxes are padded by 2^-16 of the largest coordinate: the triangle test rounds
         // `vertex − origin` to ulps of the coordinates, so with needles thinner than an ulp it
@@ -481,26 +480,18 @@ impl WideBvh {
             leaf_codes,
         } = scratch;
         // The plan of the tree that chooses the leaves: the 8-wide one when it is built, else
-        // the 4-wide one alone. With a copy to make, it is made during the copy, and
-        // everything after reads the copy.
-        let may_leaf = |_, p| p <= MAX_LEAF_TRIANGLES;
-        let bvh = match (copy, eight) {
-            (Some(out), true) => {
-                plan8.fill_copying(bvh, out, may_leaf, walk);
-                &*out
-            }
-            (Some(out), false) => {
-                plan4.fill_copying(bvh, out, may_leaf, walk);
-                &*out
-            }
-            (None, true) => {
+        // the 4-wide one alone (planned in place, it is there already).
+        let may_leaf = |_, p| may_leaf_of(p);
+        let bvh = match (prep, eight) {
+            (Prep::Fill, true) => {
                 plan8.fill(bvh, may_leaf, |_| false, true, walk);
                 bvh
             }
-            (None, false) => {
+            (Prep::Fill, false) => {
                 plan4.fill(bvh, may_leaf, |_| false, true, walk);
                 bvh
             }
+            (Prep::Planned, _) => bvh,
         };
         if !eight {
             let (nodes, depth) = collapse::<WIDTH>(
@@ -803,21 +794,68 @@ const MAX_LEAF_TRIANGLES: u32 = 8;
 ///   leaf(n)    = Cp·A(n)·⌈P(n)/4⌉   when n may be a leaf, else +inf
 /// ```
 /// A BVH2 leaf is always one leaf (`cost(n, i) = leaf(n)`). `A` is the half surface area.
+/// One row per BVH2 node, everything the planning and the collapse read of a node in one
+/// place (a row is written once and read by its parent's planning and by the collapse; four
+/// arrays made that four cache lines per node).
 #[derive(Clone, Debug, Default)]
 struct Plan<const W: usize> {
-    /// `cost[n][i − 1]` = `cost(n, i)`.
-    cost: Vec<[f32; W]>,
-    /// `split[n][j − 1]` = the `k` of `dist(n, j)` (slots given to the left child), j ≥ 2.
-    split: Vec<[u8; W]>,
-    /// Node `n`, taken as one child, is a leaf.
-    leaf: Vec<bool>,
+    rows: Vec<Row<W>>,
+}
+
+/// The plan of one BVH2 node `n`.
+#[derive(Clone, Copy, Debug)]
+struct Row<const W: usize> {
+    /// `cost[i − 1]` = `cost(n, i)`.
+    cost: [f32; W],
+    /// `split[j − 1]` = the `k` of `dist(n, j)` (slots given to the left child), j ≥ 2.
+    split: [u8; W],
+    /// Triangles under `n`.
+    prims: u32,
+    /// `n`, taken as one child, is a leaf.
+    leaf: bool,
+}
+
+impl<const W: usize> Default for Row<W> {
+    fn default() -> Row<W> {
+        Row {
+            cost: [0.0; W],
+            split: [0; W],
+            prims: 0,
+            leaf: false,
+        }
+    }
+}
+
+impl<const W: usize> Row<W> {
+    /// The row of a leaf of `p` triangles and half area `a`.
+    #[inline(always)]
+    fn leaf(a: f32, p: u32) -> Row<W> {
+        Row {
+            cost: [leaf_cost(a, p); W],
+            split: [0; W],
+            prims: p,
+            leaf: true,
+        }
+    }
+
+    /// The row of an inner node of half area `a` from its children's rows `l` and `r`;
+    /// `may_leaf(triangles)` says whether it may become one leaf.
+    #[inline(always)]
+    fn inner(l: &Row<W>, r: &Row<W>, a: f32, may_leaf: impl Fn(u32) -> bool) -> Row<W> {
+        let p = l.prims + r.prims;
+        let (cost, split, leaf) = inner_row(&l.cost, &r.cost, a, p, may_leaf(p));
+        Row {
+            cost,
+            split,
+            prims: p,
+            leaf,
+        }
+    }
 }
 
 /// The work lists of the collapse (kept between builds).
 #[derive(Clone, Debug, Default)]
 struct Walk {
-    /// Triangles under each BVH2 node.
-    prims: Vec<u32>,
     /// The nodes in pre-order.
     pre: Vec<u32>,
     stack: Vec<u32>,
@@ -858,8 +896,7 @@ impl<const W: usize> Plan<W> {
     ) {
         let n = bvh.nodes.len();
         let plan = self;
-        plan.size_for(n, &mut walk.prims);
-        let prims = &mut walk.prims;
+        plan.size_for(n);
         let mut step = |i: u32| {
             let node = &bvh.nodes[i as usize];
             let a = half_area(&node.bounds);
@@ -870,10 +907,10 @@ impl<const W: usize> Plan<W> {
                 } else {
                     subtree_triangles(bvh, i)
                 };
-                plan.plan_leaf(prims, at, a, p);
+                plan.rows[at] = Row::leaf(a, p);
             } else {
                 let (l, r) = (node.left() as usize, node.right() as usize);
-                plan.plan_inner(prims, at, a, l, r, |p| may_leaf(i, p));
+                plan.plan_inner(at, a, l, r, |p| may_leaf(i, p));
             }
         };
         if index_order && children_after_parents(bvh) {
@@ -897,46 +934,9 @@ impl<const W: usize> Plan<W> {
         pre.iter().rev().for_each(|&i| step(i));
     }
 
-    /// [`Plan::fill`] of `src` copied depth-first into `out` ([`Bvh::depth_first_into`]), in
-    /// the one walk: each node is planned as soon as its subtree is copied, so the plan's work
-    /// overlaps the walk's scattered reads; the plan is then `out`'s. No node is forced.
-    fn fill_copying(
-        &mut self,
-        src: &Bvh,
-        out: &mut Bvh,
-        may_leaf: impl Fn(u32, u32) -> bool,
-        walk: &mut Walk,
-    ) {
-        let plan = self;
-        plan.size_for(src.nodes.len(), &mut walk.prims);
-        let prims = &mut walk.prims;
-        src.depth_first_into_with(out, |nodes, i| {
-            let node = &nodes[i as usize];
-            let (a, at) = (half_area(&node.bounds), i as usize);
-            if node.is_leaf() {
-                plan.plan_leaf(prims, at, a, node.count());
-            } else {
-                let (l, r) = (node.left() as usize, node.right() as usize);
-                plan.plan_inner(prims, at, a, l, r, |p| may_leaf(i, p));
-            }
-        });
-    }
-
-    /// Size the plan and the triangle counts `prims` for a BVH2 of `n` nodes (every entry
-    /// the planning reaches is rewritten).
-    fn size_for(&mut self, n: usize, prims: &mut Vec<u32>) {
-        crate::buffers::resized(&mut self.cost, n, [0.0; W]);
-        crate::buffers::resized(&mut self.split, n, [0; W]);
-        crate::buffers::resized(&mut self.leaf, n, false);
-        crate::buffers::resized(prims, n, 0u32);
-    }
-
-    /// Plan node `at` (half area `a`) as a leaf of `p` triangles.
-    #[inline(always)]
-    fn plan_leaf(&mut self, prims: &mut [u32], at: usize, a: f32, p: u32) {
-        prims[at] = p;
-        self.cost[at] = [leaf_cost(a, p); W];
-        self.leaf[at] = true;
+    /// Size the plan for a BVH2 of `n` nodes (every entry the planning reaches is rewritten).
+    fn size_for(&mut self, n: usize) {
+        crate::buffers::resized(&mut self.rows, n, Row::default());
     }
 
     /// Plan inner node `at` (half area `a`) from its planned children `l` and `r`;
@@ -944,31 +944,13 @@ impl<const W: usize> Plan<W> {
     #[inline(always)]
     fn plan_inner(
         &mut self,
-        prims: &mut [u32],
         at: usize,
         a: f32,
         l: usize,
         r: usize,
         may_leaf: impl Fn(u32) -> bool,
     ) {
-        let p = prims[l] + prims[r];
-        prims[at] = p;
-        let (dist, split) = crate::trace::cover::dist(&self.cost[l], &self.cost[r]);
-        let inner = COST_NODE * a + dist[W - 1];
-        let as_leaf = if may_leaf(p) {
-            leaf_cost(a, p)
-        } else {
-            f32::INFINITY
-        };
-        let mut cost = [0.0f32; W];
-        let leaf = as_leaf <= inner;
-        cost[0] = if leaf { as_leaf } else { inner };
-        self.leaf[at] = leaf;
-        for j in 2..=W {
-            cost[j - 1] = cost[j - 2].min(dist[j - 1]);
-        }
-        self.cost[at] = cost;
-        self.split[at] = split;
+        self.rows[at] = Row::inner(&self.rows[l], &self.rows[r], a, may_leaf);
     }
 
     /// The BVH2 nodes that become the children of the wide node made of inner node `n`, in
@@ -976,12 +958,12 @@ impl<const W: usize> Plan<W> {
     fn children(&self, bvh: &Bvh, n: u32, out: &mut Vec<u32>, todo: &mut Vec<(u32, usize)>) {
         out.clear();
         let node = &bvh.nodes[n as usize];
-        let k = self.split[n as usize][W - 1] as usize;
+        let k = self.rows[n as usize].split[W - 1] as usize;
         // (BVH2 node, slots it may use), right part pushed first so the left comes out first.
         todo.clear();
         todo.extend([(node.right(), W - k), (node.left(), k)]);
         while let Some((m, mut i)) = todo.pop() {
-            let c = &self.cost[m as usize];
+            let c = &self.rows[m as usize].cost;
             // Fewer slots give the same cost: use fewer (ties go to the smaller cover).
             while i > 1 && c[i - 1] == c[i - 2] {
                 i -= 1;
@@ -990,7 +972,7 @@ impl<const W: usize> Plan<W> {
                 out.push(m);
             } else {
                 let mn = &bvh.nodes[m as usize];
-                let k = self.split[m as usize][i - 1] as usize;
+                let k = self.rows[m as usize].split[i - 1] as usize;
                 todo.push((mn.right(), i - k));
                 todo.push((mn.left(), k));
             }
@@ -1017,6 +999,138 @@ fn half_area(b: &Aabb) -> f32 {
 /// Cost of a leaf of `p` triangles and half area `a`: one packet test per 4 triangles.
 fn leaf_cost(a: f32, p: u32) -> f32 {
     COST_PACKET * a * p.div_ceil(WIDTH as u32) as f32
+}
+
+/// Whether an inner BVH2 node over `p` triangles may become one leaf of the wide trees.
+#[inline(always)]
+fn may_leaf_of(p: u32) -> bool {
+    p <= MAX_LEAF_TRIANGLES
+}
+
+/// The plan row of an inner node of half area `a` over `p` triangles from its children's cost
+/// rows `cl` and `cr`: its costs, splits, and whether it is best one leaf (allowed when
+/// `may_leaf`).
+#[inline(always)]
+fn inner_row<const W: usize>(
+    cl: &[f32; W],
+    cr: &[f32; W],
+    a: f32,
+    p: u32,
+    may_leaf: bool,
+) -> ([f32; W], [u8; W], bool) {
+    let (dist, split) = crate::trace::cover::dist(cl, cr);
+    let inner = COST_NODE * a + dist[W - 1];
+    let as_leaf = if may_leaf {
+        leaf_cost(a, p)
+    } else {
+        f32::INFINITY
+    };
+    let mut cost = [0.0f32; W];
+    let leaf = as_leaf <= inner;
+    cost[0] = if leaf { as_leaf } else { inner };
+    for j in 2..=W {
+        cost[j - 1] = cost[j - 2].min(dist[j - 1]);
+    }
+    (cost, split, leaf)
+}
+
+/// How [`WideBvh::rebuild_from_own_mesh`] gets its plan.
+#[derive(Debug)]
+pub(crate) enum Prep {
+    /// Planned over the BVH2 as it is.
+    Fill,
+    /// Planned already, node by node, by [`CollapseScratch::plan_in_place`] of the traced
+    /// width over this BVH2.
+    Planned,
+}
+
+/// The plan of one width filled in place, node by node, as a restructuring's last pass
+/// finishes the nodes ([`FinalNodes`]): the rows of `Plan::fill`, written through pointers into
+/// the plan's arrays (sized for the tree before), so that threads can fill the rows of the
+/// subtrees they own at once. Each row is computed while its node and its children's rows are
+/// in the cache, and the collapse then needs no walk of its own before emitting (a walk of a
+/// restructured tree reads nodes scattered over its arrays).
+#[derive(Debug)]
+pub(crate) struct PlanInPlace<'a, const W: usize> {
+    rows: *mut Row<W>,
+    len: usize,
+    _plan: core::marker::PhantomData<&'a mut Plan<W>>,
+}
+
+// SAFETY: the rows are written only through `FinalNodes::node`, whose contract gives each
+// node's row to one thread at a time and orders a node's children's rows before it.
+#[allow(unsafe_code)]
+unsafe impl<const W: usize> Sync for PlanInPlace<'_, W> {}
+
+impl<'a, const W: usize> PlanInPlace<'a, W> {
+    /// `plan` sized for a BVH2 of `n` nodes, to be filled.
+    fn new(plan: &'a mut Plan<W>, n: usize) -> PlanInPlace<'a, W> {
+        plan.size_for(n);
+        PlanInPlace {
+            rows: plan.rows.as_mut_ptr(),
+            len: n,
+            _plan: core::marker::PhantomData,
+        }
+    }
+}
+
+impl<const W: usize> FinalNodes for PlanInPlace<'_, W> {
+    #[inline(always)]
+    #[allow(unsafe_code)]
+    unsafe fn node(&self, i: u32, node: &Node) {
+        let at = i as usize;
+        assert!(at < self.len, "node index out of range");
+        let a = half_area(&node.bounds);
+        // SAFETY: every index is checked against the rows' length `len`; row `at` belongs to
+        // this thread and the children's rows were written before it, published to this
+        // thread (the `FinalNodes` contract); no reference into the rows outlives the call.
+        unsafe {
+            let row = if node.is_leaf() {
+                Row::leaf(a, node.count())
+            } else {
+                let (l, r) = (node.left() as usize, node.right() as usize);
+                assert!(l < self.len && r < self.len, "child index out of range");
+                Row::inner(&*self.rows.add(l), &*self.rows.add(r), a, may_leaf_of)
+            };
+            *self.rows.add(at) = row;
+        }
+    }
+}
+
+/// The in-place plan of the traced width (see [`CollapseScratch::plan_in_place`]).
+#[derive(Debug)]
+pub(crate) enum InPlace<'a> {
+    /// Of the 4-wide tree.
+    Four(PlanInPlace<'a, WIDTH>),
+    /// Of the 8-wide tree.
+    Eight(PlanInPlace<'a, WIDTH8>),
+}
+
+impl FinalNodes for InPlace<'_> {
+    #[inline(always)]
+    #[allow(unsafe_code)]
+    unsafe fn node(&self, i: u32, node: &Node) {
+        // SAFETY: the caller keeps the contract, passed on as it is.
+        unsafe {
+            match self {
+                InPlace::Four(p) => p.node(i, node),
+                InPlace::Eight(p) => p.node(i, node),
+            }
+        }
+    }
+}
+
+impl CollapseScratch {
+    /// The plan of the tree of `width` (4 or 8; the 8-wide one otherwise) sized for a BVH2
+    /// of `n` nodes, to be filled node by node by a restructuring's last pass; the collapse
+    /// of that BVH2 at that width then takes [`Prep::Planned`].
+    pub(crate) fn plan_in_place(&mut self, n: usize, width: usize) -> InPlace<'_> {
+        if width == WIDTH {
+            InPlace::Four(PlanInPlace::new(&mut self.plan4, n))
+        } else {
+            InPlace::Eight(PlanInPlace::new(&mut self.plan8, n))
+        }
+    }
 }
 
 /// Triangles under BVH2 node `n`.
@@ -1050,7 +1164,7 @@ fn collapse<const W: usize>(
     let mut max_depth = 0;
     let root = &bvh.nodes[bvh.root as usize];
     nodes.push(WideNodeN::empty());
-    if plan.leaf[bvh.root as usize] {
+    if plan.rows[bvh.root as usize].leaf {
         let code = leaf(bvh.root);
         nodes[0].set(0, &root.bounds, code, pad);
         return Ok((nodes, 0));
@@ -1086,7 +1200,7 @@ fn collapse<const W: usize>(
         inner.clear();
         for (lane, &k) in kids.iter().enumerate() {
             let kn = &bvh.nodes[k as usize];
-            if plan.leaf[k as usize] {
+            if plan.rows[k as usize].leaf {
                 let code = leaf(k);
                 nodes[me].set(lane, &kn.bounds, code, pad);
             } else {
