@@ -681,7 +681,7 @@ fn check_depth_first(bvh: &Bvh, copy: &Bvh) {
 proptest! {
     #![proptest_config(ProptestConfig::with_cases(32))]
 
-    /// The depth-first copy the wide collapse walks is the same tree, renumbered.
+    /// The depth-first copy of a restructured tree is the same tree, renumbered.
     #[test]
     fn depth_first_copy_of_a_restructured_tree(n in 1usize..2000, seed in any::<u64>(),
                                                random_topology in any::<bool>()) {

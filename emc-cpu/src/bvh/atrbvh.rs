@@ -234,20 +234,11 @@ pub fn restructure_quiet(
 /// construction (and by their tests): the whole-tree validation runs in debug builds only
 /// (5% of a San Francisco balanced build), and a leaf of one primitive keeps its box, which
 /// those builders copy from the primitive's (the refit of every leaf reads the boxes in
-/// random order: 3-5% of a one-thread balanced build).
+/// random order: 3-5% of a one-thread balanced build). The last pass shows `watch` every node
+/// of the output as it becomes final (see [`FinalNodes`]; [`Unwatched`] for nobody), so that
+/// work over the finished tree can be done while its nodes are still in the cache; with
+/// `cfg.iterations == 0` no pass runs and `watch` sees nothing.
 pub(crate) fn restructure_built(
-    bvh: &mut Bvh,
-    aabbs: &[Aabb],
-    cfg: &AtrConfig,
-    scratch: &mut AtrScratch,
-) -> Result<AtrStats, AtrError> {
-    restructure_built_watched(bvh, aabbs, cfg, scratch, &Unwatched)
-}
-
-/// [`restructure_built`] that shows `watch` every node of the output as it becomes final
-/// (see [`FinalNodes`]), so that work over the finished tree can be done while its nodes are
-/// still in the cache. With `cfg.iterations == 0` no pass runs and `watch` sees nothing.
-pub(crate) fn restructure_built_watched(
     bvh: &mut Bvh,
     aabbs: &[Aabb],
     cfg: &AtrConfig,
@@ -267,7 +258,9 @@ pub(crate) fn restructure_built_watched(
 }
 
 /// What the last pass of a restructuring shows of the output tree: every node, children
-/// before parents, each time it is written; the last time a node is shown it is final. A node
+/// before parents, whenever it writes the node (a treelet root's refit that an improved
+/// treelet then replaces is shown only as replaced); the last time a node is shown it is
+/// final. A node
 /// is shown on the thread that owns its subtree at that moment (the pass's ownership rule), so
 /// a watcher may keep per-node data in shared arrays without locks: a node's own entry is
 /// written only by that thread, and its children's entries were written before, by threads
@@ -286,6 +279,17 @@ pub(crate) struct Unwatched;
 impl FinalNodes for Unwatched {
     #[inline(always)]
     unsafe fn node(&self, _: u32, _: &Node) {}
+}
+
+/// A watcher, or nobody.
+impl<W: FinalNodes> FinalNodes for Option<W> {
+    #[inline(always)]
+    unsafe fn node(&self, i: u32, node: &Node) {
+        if let Some(w) = self {
+            // SAFETY: the caller keeps the contract, passed on as it is.
+            unsafe { w.node(i, node) }
+        }
+    }
 }
 
 /// The per-node arrays of a restructuring (parents, bookkeeping, leaves, arrival counters),
@@ -865,8 +869,14 @@ mod tests {
             let (bvh, aabbs) = tree(n, seed, reversed);
             let cfg = AtrConfig::default();
             let (mut fresh, mut reused) = (bvh.clone(), bvh);
-            let a = restructure_built(&mut fresh, &aabbs, &cfg, &mut AtrScratch::default());
-            let b = restructure_built(&mut reused, &aabbs, &cfg, &mut scratch);
+            let a = restructure_built(
+                &mut fresh,
+                &aabbs,
+                &cfg,
+                &mut AtrScratch::default(),
+                &Unwatched,
+            );
+            let b = restructure_built(&mut reused, &aabbs, &cfg, &mut scratch, &Unwatched);
             assert_eq!(a, b);
             assert!(a.expect("valid tree").treelets_improved > 0);
             assert_eq!(fresh, reused, "{n} primitives, reversed {reversed}");
@@ -890,6 +900,7 @@ mod tests {
             (400, 7, false, 1, 2),
             (1, 8, false, 2, 1),
             (2, 9, true, 3, 1),
+            (300, 10, false, 0, 1),
         ] {
             let (bvh, aabbs) = tree(n, seed, reversed);
             let cfg = AtrConfig::default().with_iterations(iterations);
@@ -899,21 +910,37 @@ mod tests {
                 .num_threads(threads)
                 .build()
                 .expect("a pool");
-            pool.install(|| {
-                restructure_built(&mut plain, &aabbs, &cfg, &mut AtrScratch::default())
-                    .expect("valid tree");
-                restructure_built_watched(
+            let stats = pool.install(|| {
+                restructure_built(
+                    &mut plain,
+                    &aabbs,
+                    &cfg,
+                    &mut AtrScratch::default(),
+                    &Unwatched,
+                )
+                .expect("valid tree");
+                restructure_built(
                     &mut watched,
                     &aabbs,
                     &cfg,
                     &mut AtrScratch::default(),
                     &watch,
                 )
-                .expect("valid tree");
+                .expect("valid tree")
             });
             // Watching changes nothing.
             assert_eq!(plain, watched, "{n} primitives");
             let shown = watch.0.into_inner().expect("not poisoned");
+            if iterations == 0 {
+                assert!(shown.is_empty(), "no pass, nothing shown");
+                continue;
+            }
+            // The last pass rewrote treelets (so their nodes were shown as rewritten).
+            let last_pass = stats.per_iteration.last().expect("a pass");
+            assert!(
+                n < 100 || last_pass.1 > 0,
+                "{n} primitives: no treelet improved"
+            );
             // The last time each node is shown, it is the output's node, and each inner node's
             // children were last shown before it.
             let mut last = vec![usize::MAX; watched.nodes.len()];

@@ -111,9 +111,9 @@ pub struct Bvh {
 impl Bvh {
     /// This tree renumbered depth-first into `out` (its buffers reused): every node's left
     /// child right after it, the root at 0, and the leaves' primitives in the order the leaves
-    /// are met. The same tree; a consumer that walks it depth-first (the wide collapse) then
-    /// reads both arrays front to back instead of jumping where a restructuring pass (ATR
-    /// rewrites treelets in place) left each subtree. `self` must be a valid tree.
+    /// are met. The same tree; a consumer that walks it depth-first then reads both arrays
+    /// front to back instead of jumping where a restructuring pass (ATR rewrites treelets in
+    /// place) left each subtree. `self` must be a valid tree.
     pub fn depth_first_into(&self, out: &mut Bvh) {
         self.depth_first_into_with(out, |_, _| {});
     }

@@ -41,10 +41,7 @@ use emc_core::{Aabb, LayoutSpec};
 use crate::auto::LayoutChoice;
 
 use crate::build::{build_aabbs_inline_in, BuildArena, Builder};
-use crate::bvh::atrbvh::{
-    restructure_built as restructure_atr, restructure_built_watched as restructure_atr_watched,
-    AtrConfig, AtrScratch,
-};
+use crate::bvh::atrbvh::{restructure_built as restructure_atr, AtrConfig, AtrScratch};
 use crate::bvh::binned_sah::{build_binned_sah_leaves_in, BinnedScratch, LeafRule, DEFAULT_BINS};
 use crate::bvh::collapse::collapse_bvh;
 use crate::bvh::refit::CollapseParams;
@@ -799,6 +796,17 @@ struct Bvh2 {
     planned: bool,
 }
 
+impl Bvh2 {
+    /// A tree of the LBVH pipeline (in its buffers), planned or not.
+    fn of_lbvh(bvh: Bvh, planned: bool) -> Bvh2 {
+        Bvh2 {
+            bvh,
+            binned: false,
+            planned,
+        }
+    }
+}
+
 impl BuildContext {
     /// Take back a finished BVH2's arrays: to the binned builder's buffers when it made them,
     /// else to the pipeline's.
@@ -887,38 +895,80 @@ fn bvh2_of_boxes(
     let out = build_aabbs_inline_in(std::mem::take(aabbs), &bopts, &mut ctx.arena)
         .map_err(TraceError::Build)?;
     *aabbs = out.aabbs;
-    let unplanned = |bvh| Bvh2 {
-        bvh,
-        binned: false,
-        planned: false,
-    };
     if !restructure {
-        return Ok(unplanned(out.bvh));
+        return Ok(Bvh2::of_lbvh(out.bvh, false));
     }
     let mut bvh = out.bvh;
     let cfg = AtrConfig::default();
-    // The collapse plan is filled as the last pass finishes the nodes (it needs a pass, and
-    // the tree as the collapse will read it: one triangle per leaf).
-    let in_place = plan_width.filter(|_| opts.leaf_size.is_none() && cfg.iterations > 0);
-    if let Some(width) = in_place {
-        let watch = ctx.collapse.plan_in_place(bvh.nodes.len(), width);
-        restructure_atr_watched(&mut bvh, aabbs, &cfg, &mut ctx.atr, &watch)
-            .map_err(TraceError::Restructure)?;
-        return Ok(Bvh2 {
-            bvh,
-            binned: false,
-            planned: true,
-        });
-    }
-    restructure_atr(&mut bvh, aabbs, &cfg, &mut ctx.atr).map_err(TraceError::Restructure)?;
     // Without a leaf size of its own, the restructured tree keeps one triangle per leaf: the
     // wide collapse's cover DP chooses the leaves itself (up to eight triangles). An SAH leaf
     // collapse before it was measured to change nothing the DP chooses (same wide SAH and work
     // per ray on san-francisco, bathroom and dragon) and costs more than it saves here (1.39 vs
     // 1.24 G instructions for a san-francisco build); after binned SAH it saves more than it
-    // costs, so that path keeps it.
+    // costs, so that path keeps it. The tree the collapse reads is then the restructured one,
+    // and the last pass plans it as it finishes the nodes.
+    let in_place = plan_width.filter(|_| opts.leaf_size.is_none() && cfg.iterations > 0);
+    let watch = in_place.map(|width| ctx.collapse.plan_in_place(bvh.nodes.len(), width));
+    restructure_atr(&mut bvh, aabbs, &cfg, &mut ctx.atr, &watch)
+        .map_err(TraceError::Restructure)?;
+    let planned = watch.is_some();
     if opts.leaf_size.is_none() {
-        return Ok(unplanned(bvh));
+        return Ok(Bvh2::of_lbvh(bvh, planned));
     }
-    Ok(unplanned(collapse_bvh(&bvh, &collapse)))
+    Ok(Bvh2::of_lbvh(collapse_bvh(&bvh, &collapse), false))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A jittered grid of `n` small triangles (deterministic).
+    fn mesh(n: usize, seed: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+        let mut x = seed | 1;
+        let mut next = move || {
+            x ^= x << 13;
+            x ^= x >> 17;
+            x ^= x << 5;
+            (x % 10_000) as f32 / 1000.0
+        };
+        let mut vertices = Vec::with_capacity(3 * n);
+        for _ in 0..n {
+            let o = Vec3::new(next(), next(), next());
+            vertices.extend([o, o + Vec3::new(0.1, next() / 50.0, 0.0), o + Vec3::Z * 0.1]);
+        }
+        let indices = (0..n as u32)
+            .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
+            .collect();
+        (vertices, indices)
+    }
+
+    #[test]
+    fn the_balanced_restructuring_plans_the_collapse_in_place() {
+        // One context for all (a smaller mesh after a larger: rows the restructuring missed
+        // would still hold the earlier build's), both widths, one and two threads: the plan
+        // the restructuring made equals the one planned over its output afterwards.
+        let mut ctx = BuildContext::new();
+        for (n, seed) in [(5000, 3), (1200, 4), (1, 5), (2, 6)] {
+            let (vertices, indices) = mesh(n, seed);
+            for width in [WIDTH8, WIDTH] {
+                for threads in [1, 2] {
+                    let pool = rayon::ThreadPoolBuilder::new()
+                        .num_threads(threads)
+                        .build()
+                        .expect("a pool");
+                    pool.install(|| {
+                        let opts = BuildOptions::preset(Preset::Balanced);
+                        mesh_boxes(&vertices, &indices, &mut ctx.aabbs).expect("a valid mesh");
+                        let b = bvh2_of_boxes(&opts, &mut ctx, Some(width)).expect("a tree");
+                        assert!(b.planned, "{n} triangles: not planned in place");
+                        assert!(
+                            ctx.collapse.plan_is_fill_of(&b.bvh, width),
+                            "{n} triangles, {width}-wide, {threads} threads: another plan"
+                        );
+                        ctx.recycle(b);
+                    });
+                }
+            }
+        }
+    }
 }

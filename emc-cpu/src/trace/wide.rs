@@ -482,17 +482,11 @@ impl WideBvh {
         // The plan of the tree that chooses the leaves: the 8-wide one when it is built, else
         // the 4-wide one alone (planned in place, it is there already).
         let may_leaf = |_, p| may_leaf_of(p);
-        let bvh = match (prep, eight) {
-            (Prep::Fill, true) => {
-                plan8.fill(bvh, may_leaf, |_| false, true, walk);
-                bvh
-            }
-            (Prep::Fill, false) => {
-                plan4.fill(bvh, may_leaf, |_| false, true, walk);
-                bvh
-            }
-            (Prep::Planned, _) => bvh,
-        };
+        match (prep, eight) {
+            (Prep::Fill, true) => plan8.fill(bvh, may_leaf, |_| false, true, walk),
+            (Prep::Fill, false) => plan4.fill(bvh, may_leaf, |_| false, true, walk),
+            (Prep::Planned, _) => {}
+        }
         if !eight {
             let (nodes, depth) = collapse::<WIDTH>(
                 bvh,
@@ -794,16 +788,15 @@ const MAX_LEAF_TRIANGLES: u32 = 8;
 ///   leaf(n)    = Cp·A(n)·⌈P(n)/4⌉   when n may be a leaf, else +inf
 /// ```
 /// A BVH2 leaf is always one leaf (`cost(n, i) = leaf(n)`). `A` is the half surface area.
-/// One row per BVH2 node, everything the planning and the collapse read of a node in one
-/// place (a row is written once and read by its parent's planning and by the collapse; four
-/// arrays made that four cache lines per node).
+/// One row per BVH2 node: everything the planning and the collapse read of a node in one
+/// place (48 bytes at width 8, one or two cache lines, where four arrays took four).
 #[derive(Clone, Debug, Default)]
 struct Plan<const W: usize> {
     rows: Vec<Row<W>>,
 }
 
 /// The plan of one BVH2 node `n`.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq)]
 struct Row<const W: usize> {
     /// `cost[i − 1]` = `cost(n, i)`.
     cost: [f32; W],
@@ -843,7 +836,19 @@ impl<const W: usize> Row<W> {
     #[inline(always)]
     fn inner(l: &Row<W>, r: &Row<W>, a: f32, may_leaf: impl Fn(u32) -> bool) -> Row<W> {
         let p = l.prims + r.prims;
-        let (cost, split, leaf) = inner_row(&l.cost, &r.cost, a, p, may_leaf(p));
+        let (dist, split) = crate::trace::cover::dist(&l.cost, &r.cost);
+        let inner = COST_NODE * a + dist[W - 1];
+        let as_leaf = if may_leaf(p) {
+            leaf_cost(a, p)
+        } else {
+            f32::INFINITY
+        };
+        let mut cost = [0.0f32; W];
+        let leaf = as_leaf <= inner;
+        cost[0] = if leaf { as_leaf } else { inner };
+        for j in 2..=W {
+            cost[j - 1] = cost[j - 2].min(dist[j - 1]);
+        }
         Row {
             cost,
             split,
@@ -910,7 +915,7 @@ impl<const W: usize> Plan<W> {
                 plan.rows[at] = Row::leaf(a, p);
             } else {
                 let (l, r) = (node.left() as usize, node.right() as usize);
-                plan.plan_inner(at, a, l, r, |p| may_leaf(i, p));
+                plan.rows[at] = Row::inner(&plan.rows[l], &plan.rows[r], a, |p| may_leaf(i, p));
             }
         };
         if index_order && children_after_parents(bvh) {
@@ -937,20 +942,6 @@ impl<const W: usize> Plan<W> {
     /// Size the plan for a BVH2 of `n` nodes (every entry the planning reaches is rewritten).
     fn size_for(&mut self, n: usize) {
         crate::buffers::resized(&mut self.rows, n, Row::default());
-    }
-
-    /// Plan inner node `at` (half area `a`) from its planned children `l` and `r`;
-    /// `may_leaf(triangles)` says whether it may become one leaf.
-    #[inline(always)]
-    fn plan_inner(
-        &mut self,
-        at: usize,
-        a: f32,
-        l: usize,
-        r: usize,
-        may_leaf: impl Fn(u32) -> bool,
-    ) {
-        self.rows[at] = Row::inner(&self.rows[l], &self.rows[r], a, may_leaf);
     }
 
     /// The BVH2 nodes that become the children of the wide node made of inner node `n`, in
@@ -1005,33 +996,6 @@ fn leaf_cost(a: f32, p: u32) -> f32 {
 #[inline(always)]
 fn may_leaf_of(p: u32) -> bool {
     p <= MAX_LEAF_TRIANGLES
-}
-
-/// The plan row of an inner node of half area `a` over `p` triangles from its children's cost
-/// rows `cl` and `cr`: its costs, splits, and whether it is best one leaf (allowed when
-/// `may_leaf`).
-#[inline(always)]
-fn inner_row<const W: usize>(
-    cl: &[f32; W],
-    cr: &[f32; W],
-    a: f32,
-    p: u32,
-    may_leaf: bool,
-) -> ([f32; W], [u8; W], bool) {
-    let (dist, split) = crate::trace::cover::dist(cl, cr);
-    let inner = COST_NODE * a + dist[W - 1];
-    let as_leaf = if may_leaf {
-        leaf_cost(a, p)
-    } else {
-        f32::INFINITY
-    };
-    let mut cost = [0.0f32; W];
-    let leaf = as_leaf <= inner;
-    cost[0] = if leaf { as_leaf } else { inner };
-    for j in 2..=W {
-        cost[j - 1] = cost[j - 2].min(dist[j - 1]);
-    }
-    (cost, split, leaf)
 }
 
 /// How [`WideBvh::rebuild_from_own_mesh`] gets its plan.
@@ -1121,6 +1085,28 @@ impl FinalNodes for InPlace<'_> {
 }
 
 impl CollapseScratch {
+    /// Whether the plan of `width` holds, for every node of `bvh`, the row `Plan::fill`
+    /// computes (the check of a plan made in place).
+    #[cfg(test)]
+    pub(crate) fn plan_is_fill_of(&self, bvh: &Bvh, width: usize) -> bool {
+        fn same<const W: usize>(plan: &Plan<W>, bvh: &Bvh) -> bool {
+            let mut fresh = Plan::<W>::default();
+            fresh.fill(
+                bvh,
+                |_, p| may_leaf_of(p),
+                |_| false,
+                true,
+                &mut Walk::default(),
+            );
+            plan.rows.len() == bvh.nodes.len() && fresh.rows == plan.rows
+        }
+        if width == WIDTH {
+            same(&self.plan4, bvh)
+        } else {
+            same(&self.plan8, bvh)
+        }
+    }
+
     /// The plan of the tree of `width` (4 or 8; the 8-wide one otherwise) sized for a BVH2
     /// of `n` nodes, to be filled node by node by a restructuring's last pass; the collapse
     /// of that BVH2 at that width then takes [`Prep::Planned`].
