@@ -782,3 +782,69 @@ fn bad_edits_are_refused_with_errors() {
     assert!(top.intersect(&bad_ray).is_none() && !top.occluded(&bad_ray));
     assert_eq!(inner.mask(g).unwrap(), Ray::ALL);
 }
+
+#[test]
+fn instance_boxes_hold_their_geometry_and_are_tighter_than_the_turned_mesh_box() {
+    // An instance's box is the union of the instanced scene's root child boxes transformed:
+    // it must hold every transformed vertex (for a mesh and for a scene of two meshes), and
+    // for the mesh, whose root splits it, it is smaller under rotations than the transformed
+    // box of the whole mesh (the two-mesh scene's root children are the two overlapping
+    // meshes' boxes, so there it is only checked to hold them).
+    let (v, ix) = normalise(mesh("mixed", 4000, 21));
+    let (v2, ix2) = normalise(mesh("sphere", 800, 22));
+    let mut one = Scene::new();
+    one.add_mesh(&v, &ix, &BuildOptions::preset(Preset::Quality))
+        .unwrap();
+    one.commit().unwrap();
+    let mut two = Scene::new();
+    for (vv, ii) in [(&v, &ix), (&v2, &ix2)] {
+        two.add_mesh(vv, ii, &BuildOptions::preset(Preset::Fast))
+            .unwrap();
+    }
+    two.commit().unwrap();
+    let (one, two) = (Arc::new(one), Arc::new(two));
+    let mut rng = builtin::Pcg32::new(23, 5);
+    let (mut smaller, mut total) = (0, 0);
+    for k in 0..40 {
+        let m = transform(&mut rng, k);
+        for (blas, verts, split) in [(&one, vec![&v], true), (&two, vec![&v, &v2], false)] {
+            let mut top = Scene::new();
+            top.add_instance(blas.clone(), m).unwrap();
+            top.commit().unwrap();
+            let b = top.bounds();
+            let mut turned = Aabb::EMPTY;
+            for p in verts.iter().flat_map(|vs| vs.iter()) {
+                let w = m.transform_point3(*p);
+                assert!(
+                    b.min.cmple(w).all() && w.cmple(b.max).all(),
+                    "transform {k}: vertex {w} outside the instance box {b:?}"
+                );
+                turned.grow(w);
+            }
+            // The mesh's own box, turned: its eight corners.
+            let mb = blas.bounds();
+            let mut loose = Aabb::EMPTY;
+            for c in 0..8 {
+                let p = Vec3::new(
+                    if c & 1 == 0 { mb.min.x } else { mb.max.x },
+                    if c & 2 == 0 { mb.min.y } else { mb.max.y },
+                    if c & 4 == 0 { mb.min.z } else { mb.max.z },
+                );
+                loose.grow(m.transform_point3(p));
+            }
+            let area = |b: &Aabb| {
+                let e = b.max - b.min;
+                e.x * e.y + e.y * e.z + e.z * e.x
+            };
+            if split {
+                total += 1;
+                smaller += usize::from(area(&b) < area(&loose));
+            }
+            assert!(area(&b) >= area(&turned) * 0.999);
+        }
+    }
+    assert!(
+        smaller * 10 >= total * 9,
+        "only {smaller} of {total} instance boxes are tighter than the turned mesh box"
+    );
+}
