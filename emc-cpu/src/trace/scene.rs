@@ -6,7 +6,7 @@
 //! ```
 //! use std::sync::Arc;
 //! use emc_cpu::trace::{BuildOptions, Preset, Ray, Scene};
-//! use glam::{Affine3A, Vec3, Vec3A};
+//! use glam::{Affine3A, Vec3};
 //!
 //! // One unit square (two triangles) as a scene of its own...
 //! let v = [Vec3::ZERO, Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y];
