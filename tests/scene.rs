@@ -786,10 +786,11 @@ fn bad_edits_are_refused_with_errors() {
 #[test]
 fn instance_boxes_hold_their_geometry_and_are_tighter_than_the_turned_mesh_box() {
     // An instance's box is the union of the instanced scene's root child boxes transformed:
-    // it must hold every transformed vertex (for a mesh and for a scene of two meshes), and
-    // for the mesh, whose root splits it, it is smaller under rotations than the transformed
-    // box of the whole mesh (the two-mesh scene's root children are the two overlapping
-    // meshes' boxes, so there it is only checked to hold them).
+    // it must hold every transformed vertex (a mesh, a scene of two meshes, a small mesh far
+    // from the origin), and for the mesh near the origin, whose root splits it, it is smaller
+    // under rotations than the transformed box of the whole mesh in nine cases of ten (the
+    // two-mesh scene's root children are the two overlapping meshes' boxes, and the far mesh
+    // is tiny beside its rounding margin, so those are only checked to hold their vertices).
     let (v, ix) = normalise(mesh("mixed", 4000, 21));
     let (v2, ix2) = normalise(mesh("sphere", 800, 22));
     let mut one = Scene::new();
@@ -802,24 +803,37 @@ fn instance_boxes_hold_their_geometry_and_are_tighter_than_the_turned_mesh_box()
             .unwrap();
     }
     two.commit().unwrap();
-    let (one, two) = (Arc::new(one), Arc::new(two));
+    // A fast-preset mesh far from the origin (where the rounding margin, not the trees' own
+    // padding, decides), alone in its scene.
+    let far: Vec<Vec3> = v2
+        .iter()
+        .map(|p| *p * 0.01 + Vec3::new(3.0e5, -7.0e5, 1.1e6))
+        .collect();
+    let mut three = Scene::new();
+    three
+        .add_mesh(&far, &ix2, &BuildOptions::preset(Preset::Fast))
+        .unwrap();
+    three.commit().unwrap();
+    let (one, two, three) = (Arc::new(one), Arc::new(two), Arc::new(three));
     let mut rng = builtin::Pcg32::new(23, 5);
     let (mut smaller, mut total) = (0, 0);
     for k in 0..40 {
         let m = transform(&mut rng, k);
-        for (blas, verts, split) in [(&one, vec![&v], true), (&two, vec![&v, &v2], false)] {
+        for (blas, verts, split) in [
+            (&one, vec![&v], true),
+            (&two, vec![&v, &v2], false),
+            (&three, vec![&far], false),
+        ] {
             let mut top = Scene::new();
             top.add_instance(blas.clone(), m).unwrap();
             top.commit().unwrap();
             let b = top.bounds();
-            let mut turned = Aabb::EMPTY;
             for p in verts.iter().flat_map(|vs| vs.iter()) {
                 let w = m.transform_point3(*p);
                 assert!(
                     b.min.cmple(w).all() && w.cmple(b.max).all(),
                     "transform {k}: vertex {w} outside the instance box {b:?}"
                 );
-                turned.grow(w);
             }
             // The mesh's own box, turned: its eight corners.
             let mb = blas.bounds();
@@ -840,7 +854,6 @@ fn instance_boxes_hold_their_geometry_and_are_tighter_than_the_turned_mesh_box()
                 total += 1;
                 smaller += usize::from(area(&b) < area(&loose));
             }
-            assert!(area(&b) >= area(&turned) * 0.999);
         }
     }
     assert!(
