@@ -805,28 +805,19 @@ fn custom_tree(boxes: &[Aabb], tree: &mut Option<Accel>) -> Result<Aabb, TraceEr
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    /// A small deterministic generator of floats in `[lo, hi)`.
-    struct Lcg(u64);
-
-    impl Lcg {
-        fn range(&mut self, lo: f32, hi: f32) -> f32 {
-            self.0 = self
-                .0
-                .wrapping_mul(6_364_136_223_846_793_005)
-                .wrapping_add(1_442_695_040_888_963_407);
-            lo + (hi - lo) * ((self.0 >> 40) as f32 / (1u64 << 24) as f32)
-        }
-    }
+    use crate::scene::builtin::Pcg32;
+    use crate::trace::workload::instance_grid;
 
     #[test]
     #[allow(clippy::needless_range_loop)] // axes `r` of several vectors at once
     fn a_world_box_holds_the_exactly_transformed_hull_boxes() {
         // The hull boxes' corners transformed in f64 (exact enough: 53-bit products of 24-bit
         // values) must lie in the f32 world box, for boxes and transforms whose terms cancel
-        // (large coordinates brought back near the origin), mirrors, and wide scales.
-        let mut rng = Lcg(99);
-        for k in 0..4000 {
+        // (large coordinates brought back near the origin), mirrors, stretches and scales (the
+        // rotations and scales of `instance_grid`, stretched further on every other case).
+        let mut rng = Pcg32::new(99, 3);
+        let turns = instance_grid(4000, Vec3::splat(-1.0), Vec3::ONE, 99);
+        for (k, turn) in turns.iter().enumerate() {
             let big = [1.0, 1.0e3, 1.0e6, 3.0e7][k % 4];
             let boxes: Vec<Aabb> = (0..1 + k % 8)
                 .map(|_| {
@@ -843,27 +834,20 @@ mod tests {
                     Aabb::new(c - e, c + e)
                 })
                 .collect();
-            let axis = Vec3::new(
-                rng.range(-1.0, 1.0),
-                rng.range(-1.0, 1.0),
-                rng.range(-1.0, 1.0),
-            )
-            .try_normalize()
-            .unwrap_or(Vec3::Z);
-            let q = glam::Quat::from_axis_angle(axis, rng.range(0.0, 6.3));
-            let mut s = Vec3::new(
-                rng.range(0.1, 5.0),
-                rng.range(0.1, 5.0),
-                rng.range(0.1, 5.0),
-            );
-            if k % 3 == 0 {
-                s.y = -s.y;
-            }
+            let stretch = if k % 2 == 0 {
+                Vec3::new(rng.range(0.2, 5.0), rng.range(0.2, 5.0), 1.0)
+            } else {
+                Vec3::ONE
+            };
+            let m0 = Affine3A::from_scale(stretch)
+                * Affine3A {
+                    matrix3: turn.matrix3,
+                    translation: Vec3A::ZERO,
+                };
             // A translation that brings the first box's centre back near the origin.
             let centre = (boxes[0].min + boxes[0].max) * 0.5;
-            let m0 = Affine3A::from_scale_rotation_translation(s, q, Vec3::ZERO);
             let t = -m0.transform_point3(centre) + Vec3::splat(rng.range(-1.0, 1.0));
-            let m = Affine3A::from_scale_rotation_translation(s, q, t);
+            let m = Affine3A::from_translation(t) * m0;
             let mut scene = Scene::new();
             scene.committed = true;
             scene.hull = boxes
