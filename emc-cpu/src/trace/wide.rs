@@ -163,9 +163,9 @@ impl TriPacket {
 ///
 /// ```text
 ///   W = 4: bytes   0..96 : lo[x], hi[x], lo[y], hi[y], lo[z], hi[z]   each [f32; 4]
-///          bytes  96..112: child[4]      bytes 112..128: padding
+///          bytes  96..112: child[4]      bytes 112..128: zero
 ///   W = 8: bytes   0..192: lo[x], hi[x], lo[y], hi[y], lo[z], hi[z]   each [f32; 8]
-///          bytes 192..224: child[8]      bytes 224..256: padding
+///          bytes 192..224: child[8]      bytes 224..256: zero
 ///   lane = child;  child code  inner: node index | leaf: LEAF | first packet | EMPTY
 /// ```
 /// An unused lane has the empty box (lo = +inf, hi = −inf), which no ray enters.
@@ -176,6 +176,8 @@ pub struct WideNodeN<const W: usize> {
     pub planes: [[f32; W]; 6],
     /// Child codes, see the type docs.
     pub child: [u32; W],
+    /// Fills the node to its size (no padding bytes: a node is copied in 16-byte pieces).
+    _pad: [u32; W],
 }
 
 /// The triangles a collapse reads, by id: a triangle list, or an indexed mesh.
@@ -256,6 +258,7 @@ impl<const W: usize> WideNodeN<W> {
         WideNodeN {
             planes,
             child: [EMPTY; W],
+            _pad: [0; W],
         }
     }
 

@@ -262,6 +262,7 @@ macro_rules! block_builders {
             for &(b, e) in ranges {
                 sink.push($build_block(inp, b, e, out));
             }
+            stream_fence();
         }
 
         /// Step 2: build block `[b, e)` (1 ≤ e − b ≤ [`BLOCK`]): gather its triangles, sweep its
@@ -350,7 +351,16 @@ macro_rules! block_builders {
                     height: 0,
                 };
             }
-            let (code, cost, height) = $emit_wide(inp, out, ids, root);
+            // A block has fewer wide nodes than primitives (each has two children or more).
+            out.nodes.reserve(m);
+            let mut next = out.nodes.len();
+            let (code, cost, height) = $emit_wide(inp, out, ids, root, &mut next);
+            // SAFETY: `emit_wide` stored a whole node into each slot it took, `len..next`,
+            // all within the capacity reserved above.
+            #[allow(unsafe_code)]
+            unsafe {
+                out.nodes.set_len(next)
+            };
             Fixed {
                 code,
                 bx,
@@ -363,15 +373,19 @@ macro_rules! block_builders {
         /// children come from opening the largest inner child until there are `W` (an inner child
         /// left over would cost a wide node of its own), then, with lanes to spare, the leaves whose
         /// two halves cost least against them. Returns its code (node index), SAH cost and height.
+        /// The node takes slot `*next` of `out.nodes` (its spare capacity: the caller reserved
+        /// room and sets the length once the block is written), its subtree the slots after.
         $(#[$isa])*
                 fn $emit_wide<K: RadixKey, const W: usize>(
             inp: &Inputs<'_, K>,
             out: &mut Outputs<'_, W>,
             ids: &[u32],
             bn: u32,
+            next: &mut usize,
         ) -> (u32, f32, usize) {
-            let me = out.nodes.len();
-            out.nodes.push(WideNodeN::empty());
+            let me = *next;
+            *next += 1;
+            let mut wide = WideNodeN::<W>::empty();
             let nodes = &out.block.nodes;
             let root = &nodes[bn as usize];
             let mut kids = [0u32; W];
@@ -421,14 +435,20 @@ macro_rules! block_builders {
                     cost += c;
                     code
                 } else {
-                    let (code, c, h) = $emit_wide(inp, out, ids, k);
+                    let (code, c, h) = $emit_wide(inp, out, ids, k, next);
                     cost += c;
                     height = height.max(h + 1);
                     code
                 };
-                // In place: the node's slot was pushed (empty) before its children.
-                out.nodes[me].set(lane, &kn.aabb(), code, inp.pad);
+                wide.set(lane, &kn.aabb(), code, inp.pad);
             }
+            assert!(me < out.nodes.capacity());
+            // SAFETY: slot `me` is within the capacity (checked), past the length, and taken
+            // by this node alone.
+            #[allow(unsafe_code)]
+            unsafe {
+                store_streaming(out.nodes.as_mut_ptr().add(me), &wide)
+            };
             (me as u32, cost, height)
         }
     };
@@ -579,15 +599,83 @@ fn emit_leaf<const W: usize>(
         let lo = j * WIDTH;
         let real = (c - lo).min(WIDTH);
         let lane = |l: usize| lo + l.min(real - 1);
-        out.packets.push(TriPacket::from_lanes(
-            core::array::from_fn(|l| &tris[lane(l)]),
-            core::array::from_fn(|l| ids[lane(l)]),
-            real as u32,
-            j + 1 == k,
-        ));
+        push_streaming(
+            out.packets,
+            TriPacket::from_lanes(
+                core::array::from_fn(|l| &tris[lane(l)]),
+                core::array::from_fn(|l| ids[lane(l)]),
+                real as u32,
+                j + 1 == k,
+            ),
+        );
     }
     out.leaves += 1;
     (code, COST_PACKET * area * k as f32)
+}
+
+/// Store `v` at `dst` by streaming (non-temporal) stores on x86-64: the build writes its nodes
+/// and packets once and reads none of them back, so fetching their lines first (as a plain
+/// store must) only doubles the traffic to memory. Stores from different calls may become
+/// visible to other threads in any order until [`stream_fence`].
+///
+/// # Safety
+/// `dst` must be valid for a write of a `T` and not be read or written by another thread
+/// before the writer's next [`stream_fence`]; `T` must have no padding bytes (it is read in
+/// 16-byte pieces).
+#[inline(always)]
+#[allow(unsafe_code)]
+unsafe fn store_streaming<T: Copy>(dst: *mut T, v: &T) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use core::arch::x86_64::{__m128, _mm_loadu_ps, _mm_stream_ps};
+        const {
+            assert!(
+                core::mem::size_of::<T>().is_multiple_of(16) && core::mem::align_of::<T>() >= 16
+            )
+        };
+        let (d, s) = (dst.cast::<f32>(), (v as *const T).cast::<f32>());
+        for i in 0..core::mem::size_of::<T>() / 16 {
+            // SAFETY: 16-byte pieces of `*v` and of `*dst` (valid by the caller's contract, and
+            // 16-byte aligned by the assertion above); SSE is in the x86-64 baseline.
+            unsafe {
+                let x: __m128 = _mm_loadu_ps(s.add(4 * i));
+                _mm_stream_ps(d.add(4 * i), x);
+            }
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    // SAFETY: the caller's contract.
+    unsafe {
+        dst.write(*v)
+    };
+}
+
+/// Order every streaming store of this thread before its later stores (so another thread that
+/// synchronises with it afterwards sees them).
+#[inline(always)]
+fn stream_fence() {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: SSE is in the x86-64 baseline; a fence has no other effect.
+    #[allow(unsafe_code)]
+    unsafe {
+        core::arch::x86_64::_mm_sfence()
+    };
+}
+
+/// Append `p` to `packets` by [`store_streaming`].
+#[inline(always)]
+fn push_streaming(packets: &mut Vec<TriPacket>, p: TriPacket) {
+    let n = packets.len();
+    if n == packets.capacity() {
+        packets.reserve(BLOCK as usize);
+    }
+    // SAFETY: slot `n` is within the capacity (reserved above) and past the length; the packet
+    // is whole once stored, so the length may cover it.
+    #[allow(unsafe_code)]
+    unsafe {
+        store_streaming(packets.as_mut_ptr().add(n), &p);
+        packets.set_len(n + 1);
+    }
 }
 
 /// Which child of a wide node under construction is opened next: every inner child before
@@ -914,15 +1002,24 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
         .enumerate()
         .for_each(|(g, ((dn, dp), o))| {
             for (d, s) in dp.iter_mut().zip(&o.packets) {
-                d.write(*s);
+                // SAFETY: a slot of this group's piece, which no other thread touches.
+                #[allow(unsafe_code)]
+                unsafe {
+                    store_streaming(d.as_mut_ptr(), s)
+                };
             }
             for (d, s) in dn.iter_mut().zip(&o.nodes) {
                 let mut s = *s;
                 for c in s.child.iter_mut() {
                     *c = shift(*c, node_off[g], packet_off[g]);
                 }
-                d.write(s);
+                // SAFETY: as above.
+                #[allow(unsafe_code)]
+                unsafe {
+                    store_streaming(d.as_mut_ptr(), &s)
+                };
             }
+            stream_fence();
         });
     // SAFETY: the pieces above cover the `nn - n0` node and `np - p0` packet slots after the
     // buffers' lengths exactly (`split_by_len` of the copied groups' lengths, which sum to
