@@ -92,15 +92,15 @@ struct BNode {
     first: u32,
     /// Number of primitives.
     count: u32,
-    /// Half area of `bx`.
-    area: f32,
     /// SAH cost of the subtree as the leaf decisions price it.
     cost: f32,
-    /// What opening the subtree saves: its cost less its two children's (0 for a primitive).
-    gain: f32,
-    /// The subtree is one leaf.
-    leaf: bool,
+    /// The subtree's [`open_priority`] (which also says whether it is one leaf).
+    prio: u32,
+    /// The children's priorities (left, right): opening this node reads no child.
+    kids_prio: [u32; 2],
 }
+
+const _: () = assert!(core::mem::size_of::<BNode>() == 64);
 
 const NO_NODE: BNode = BNode {
     lo: Vec3A::INFINITY,
@@ -109,10 +109,9 @@ const NO_NODE: BNode = BNode {
     right: 0,
     first: 0,
     count: 0,
-    area: 0.0,
     cost: 0.0,
-    gain: 0.0,
-    leaf: true,
+    prio: 0,
+    kids_prio: [0; 2],
 };
 
 /// Buffers of the block builder (kept between blocks and builds).
@@ -315,10 +314,9 @@ macro_rules! block_builders {
                     right: 0,
                     first: p as u32,
                     count: 1,
-                    area,
                     cost: COST_PACKET * area,
-                    gain: 0.0,
-                    leaf: true,
+                    prio: 0,
+                    kids_prio: [0; 2],
                 };
                 s.nodes[next] = node;
                 next += 1;
@@ -342,8 +340,8 @@ macro_rules! block_builders {
             let root = s.stack[0].0;
             let rn = s.nodes[root as usize];
             let bx = rn.aabb();
-            if rn.leaf {
-                let (code, cost) = emit_leaf(out, ids, rn.first, rn.count, rn.area);
+            if rn.is_leaf() {
+                let (code, cost) = emit_leaf(out, ids, rn.first, rn.count, rn.area());
                 return Fixed {
                     code,
                     bx,
@@ -389,12 +387,12 @@ macro_rules! block_builders {
             let nodes = &out.block.nodes;
             let root = &nodes[bn as usize];
             let mut kids = [0u32; W];
-            // Each child's opening priority, kept beside it so the choice reads no node.
-            let mut prio = [0u64; W];
+            // Each child's opening priority, kept beside it so the choice reads no node (and
+            // an opened node holds its children's).
+            let mut prio = [0u32; W];
             kids[0] = root.left;
             kids[1] = root.right;
-            prio[0] = open_priority(&nodes[root.left as usize]);
-            prio[1] = open_priority(&nodes[root.right as usize]);
+            [prio[0], prio[1]] = root.kids_prio;
             let mut n = 2;
             while n < W {
                 // The first of the highest priority (selects, not branches: the keys are
@@ -412,6 +410,7 @@ macro_rules! block_builders {
                 }
                 let k = &nodes[kids[best] as usize];
                 let (l, r) = (k.left, k.right);
+                let kp = k.kids_prio;
                 // Shift the children after `best` one lane on (a loop of at most W − 2
                 // moves; `copy_within` would call `memmove` for each opening).
                 let mut i = n;
@@ -422,16 +421,15 @@ macro_rules! block_builders {
                 }
                 kids[best] = l;
                 kids[best + 1] = r;
-                prio[best] = open_priority(&nodes[l as usize]);
-                prio[best + 1] = open_priority(&nodes[r as usize]);
+                [prio[best], prio[best + 1]] = kp;
                 n += 1;
             }
-            let mut cost = COST_NODE * root.area;
+            let mut cost = COST_NODE * root.area();
             let mut height = 1;
             for (lane, &k) in kids[..n].iter().enumerate() {
                 let kn = out.block.nodes[k as usize];
-                let code = if kn.leaf {
-                    let (code, c) = emit_leaf(out, ids, kn.first, kn.count, kn.area);
+                let code = if kn.is_leaf() {
+                    let (code, c) = emit_leaf(out, ids, kn.first, kn.count, kn.area());
                     cost += c;
                     code
                 } else {
@@ -551,14 +549,25 @@ fn merge(a: &BNode, c: &BNode, l: u32, r: u32, leaf_max: u32) -> BNode {
         right: r,
         first: a.first,
         count,
-        area,
         cost,
-        gain: cost - a.cost - c.cost,
-        leaf,
+        prio: open_priority(leaf, count, area, cost - a.cost - c.cost),
+        kids_prio: [a.prio, c.prio],
     }
 }
 
 impl BNode {
+    /// Whether the subtree is one leaf (inner subtrees have priority class 2).
+    #[inline(always)]
+    fn is_leaf(&self) -> bool {
+        self.prio < PRIO_INNER
+    }
+
+    /// Half area of the box.
+    #[inline(always)]
+    fn area(&self) -> f32 {
+        half_area_a(self.lo, self.hi)
+    }
+
     /// The box as the wide nodes store it.
     #[inline(always)]
     fn aabb(&self) -> Aabb {
@@ -678,27 +687,33 @@ fn push_streaming(packets: &mut Vec<TriPacket>, p: TriPacket) {
     }
 }
 
-/// Which child of a wide node under construction is opened next: every inner child before
-/// any leaf, the largest area first; then a leaf of several primitives whose two halves cost
-/// least against it (positive gain only); never a single primitive (key 0). Larger is opened
-/// first.
+/// The lowest priority of an inner subtree (class 2).
+const PRIO_INNER: u32 = 2 << 30;
+
+/// Which child of a wide node under construction is opened next, for a subtree of `count`
+/// primitives with half area `area`, one leaf or not, whose opening saves `gain` (its cost
+/// less its two children's): every inner child before any leaf, the largest area first; then
+/// a leaf of several primitives whose two halves cost least against it (positive gain only);
+/// never a single primitive (key 0). Larger is opened first.
 ///
 /// ```text
-///   key bits  63 … 34 | 33 32 | 31 … 0
-///             zero    | class | the area (class 2) or gain (class 1), f32 bits
+///   key bits  31 30 | 29 … 0
+///             class | the area (class 2) or gain (class 1): f32 bits 30 … 1
 /// ```
 ///
-/// Areas and positive gains are non-negative floats, whose bit patterns order as their values.
+/// Areas and positive gains are non-negative floats, whose bit patterns order as their values;
+/// the sign bit is zero and the lowest mantissa bit is dropped (values one ulp apart tie, and
+/// the first child wins).
 #[inline(always)]
-fn open_priority(kn: &BNode) -> u64 {
+fn open_priority(leaf: bool, count: u32, area: f32, gain: f32) -> u32 {
     // Branch-free (which class a child falls in is data, and mispredicted): masks and
     // selects only.
-    let inner = !kn.leaf;
-    let split = kn.leaf & (kn.count > 1) & (kn.gain > 0.0);
-    let class = 2 * u64::from(inner) + u64::from(split);
-    let v = if inner { kn.area } else { kn.gain };
-    let key = (class << 32) | u64::from(v.to_bits());
-    key & 0u64.wrapping_sub(u64::from(class != 0))
+    let inner = !leaf;
+    let split = leaf & (count > 1) & (gain > 0.0);
+    let class = 2 * u32::from(inner) + u32::from(split);
+    let v = if inner { area } else { gain };
+    let key = (class << 30) | (v.to_bits() >> 1);
+    key & 0u32.wrapping_sub(u32::from(class != 0))
 }
 
 /// The SAH-optimal cover of the top tree by `W`-wide nodes (as `Plan` in `wide.rs`, the
