@@ -574,7 +574,7 @@ pub fn build_scene_in(
         crate::aabbs::triangle_aabbs(&scene.vertices, &scene.indices, &mut out);
         out
     });
-    build_timed(timed, aabbs, opts, arena)
+    build_timed(timed, aabbs, None, opts, arena)
 }
 
 /// Build over primitive boxes (the AABB phase is then 0), in fresh buffers.
@@ -591,16 +591,19 @@ pub fn build_aabbs_inline(
     if opts.threads == 0 {
         return Err(BuildError::ZeroThreads);
     }
-    build_timed(Timed::inline(), aabbs, opts, &mut BuildArena::new())
+    build_timed(Timed::inline(), aabbs, None, opts, &mut BuildArena::new())
 }
 
-/// [`build_aabbs_inline`] in the buffers of `arena` (the caller's pool, no CPU accounting).
+/// [`build_aabbs_inline`] in the buffers of `arena` (the caller's pool, no CPU accounting);
+/// `bounds`, when given, must be [`scene_bounds`] of the boxes (as
+/// [`crate::aabbs::triangle_aabbs_bounds`] returns them with the boxes), and saves that pass.
 pub fn build_aabbs_inline_in(
     aabbs: Vec<Aabb>,
+    bounds: Option<SceneBounds>,
     opts: &PipelineOptions,
     arena: &mut BuildArena,
 ) -> Result<BuildOutput, BuildError> {
-    build_timed(Timed::inline(), aabbs, opts, arena)
+    build_timed(Timed::inline(), aabbs, bounds, opts, arena)
 }
 
 /// [`build_aabbs`] in the buffers of `arena`.
@@ -609,12 +612,13 @@ pub fn build_aabbs_in(
     opts: &PipelineOptions,
     arena: &mut BuildArena,
 ) -> Result<BuildOutput, BuildError> {
-    build_timed(Timed::new(opts.threads)?, aabbs, opts, arena)
+    build_timed(Timed::new(opts.threads)?, aabbs, None, opts, arena)
 }
 
 fn build_timed(
     mut timed: Timed,
     aabbs: Vec<Aabb>,
+    bounds: Option<SceneBounds>,
     opts: &PipelineOptions,
     arena: &mut BuildArena,
 ) -> Result<BuildOutput, BuildError> {
@@ -665,7 +669,14 @@ fn build_timed(
     }
     let ab = &aabbs;
     let frame = timed.run(Phase::Encode, || {
-        Frame::from_bounds(scene_bounds(ab)?, Normalization::CentroidBox)
+        let b = match bounds {
+            Some(b) => {
+                debug_assert_eq!(Ok(b), scene_bounds(ab), "bounds given are not the boxes'");
+                b
+            }
+            None => scene_bounds(ab)?,
+        };
+        Frame::from_bounds(b, Normalization::CentroidBox)
     })?;
     let (spec, auto, auto_time) = match opts.layout.fixed() {
         Some(spec) => (spec, None, PhaseTime::default()),

@@ -771,7 +771,7 @@ fn build_over(
     let bounds = mesh_boxes(vertices, indices, &mut ctx.aabbs)?;
     let p = bounds.prim;
     let max_abs = p.min.abs().max_element().max(p.max.abs().max_element());
-    let bvh2 = bvh2_of_boxes(opts, ctx, Some(width))?;
+    let bvh2 = bvh2_of_boxes(opts, ctx, Some(width), Some(bounds))?;
     let mesh = Indexed { vertices, indices };
     // Restructuring rewrote treelets in place, scattering each subtree's nodes over the
     // arrays: its last pass planned the collapse node by node while they were in the cache
@@ -843,17 +843,19 @@ fn build_bvh2_in(
         tris.par_iter()
             .map(|t| Aabb::from_triangle(t[0], t[1], t[2])),
     );
-    bvh2_of_boxes(opts, ctx, None)
+    bvh2_of_boxes(opts, ctx, None, None)
 }
 
 /// The BVH2 `opts` ask for over the (checked, non-empty) triangle boxes in `ctx.aabbs`, in the
 /// buffers of `ctx` (the boxes stay there). With `plan_width`, a restructured tree that keeps
 /// one triangle per leaf comes with the collapse plan of that width filled during the
-/// restructuring's last pass.
+/// restructuring's last pass. `bounds`, when given, are the boxes' scene bounds (saving the
+/// LBVH a pass over them).
 fn bvh2_of_boxes(
     opts: &BuildOptions,
     ctx: &mut BuildContext,
     plan_width: Option<usize>,
+    bounds: Option<emc_core::SceneBounds>,
 ) -> Result<Bvh2, TraceError> {
     let aabbs = &mut ctx.aabbs;
     let (builder, layout, restructure) = opts.resolve();
@@ -892,7 +894,7 @@ fn bvh2_of_boxes(
             collapse
         },
     };
-    let out = build_aabbs_inline_in(std::mem::take(aabbs), &bopts, &mut ctx.arena)
+    let out = build_aabbs_inline_in(std::mem::take(aabbs), bounds, &bopts, &mut ctx.arena)
         .map_err(TraceError::Build)?;
     *aabbs = out.aabbs;
     if !restructure {
@@ -958,8 +960,10 @@ mod tests {
                         .expect("a pool");
                     pool.install(|| {
                         let opts = BuildOptions::preset(Preset::Balanced);
-                        mesh_boxes(&vertices, &indices, &mut ctx.aabbs).expect("a valid mesh");
-                        let b = bvh2_of_boxes(&opts, &mut ctx, Some(width)).expect("a tree");
+                        let bounds =
+                            mesh_boxes(&vertices, &indices, &mut ctx.aabbs).expect("a valid mesh");
+                        let b = bvh2_of_boxes(&opts, &mut ctx, Some(width), Some(bounds))
+                            .expect("a tree");
                         assert!(b.planned, "{n} triangles: not planned in place");
                         assert!(
                             ctx.collapse.plan_is_fill_of(&b.bvh, width),
