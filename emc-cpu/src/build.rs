@@ -597,6 +597,8 @@ pub fn build_aabbs_inline(
 /// [`build_aabbs_inline`] in the buffers of `arena` (the caller's pool, no CPU accounting);
 /// `bounds`, when given, must be [`scene_bounds`] of the boxes (as
 /// [`crate::aabbs::triangle_aabbs_bounds`] returns them with the boxes), and saves that pass.
+/// They are trusted: only debug builds check them, and other bounds give another frame and
+/// so other codes and another (valid) tree.
 pub fn build_aabbs_inline_in(
     aabbs: Vec<Aabb>,
     bounds: Option<SceneBounds>,

@@ -350,7 +350,11 @@ macro_rules! block_builders {
                 };
             }
             // A block has fewer wide nodes than primitives (each has two children or more).
-            out.nodes.reserve(m);
+            if out.nodes.capacity() - out.nodes.len() < m {
+                // Growing copies the nodes stored so far: order them first.
+                stream_fence();
+                out.nodes.reserve(m);
+            }
             let mut next = out.nodes.len();
             let (code, cost, height) = $emit_wide(inp, out, ids, root, &mut next);
             // SAFETY: `emit_wide` stored a whole node into each slot it took, `len..next`,
@@ -623,14 +627,15 @@ fn emit_leaf<const W: usize>(
 }
 
 /// Store `v` at `dst` by streaming (non-temporal) stores on x86-64: the build writes its nodes
-/// and packets once and reads none of them back, so fetching their lines first (as a plain
-/// store must) only doubles the traffic to memory. Stores from different calls may become
-/// visible to other threads in any order until [`stream_fence`].
+/// and packets once and reads none of them back while it writes (only the parallel copy of
+/// the back groups reads them, after a fence), so fetching their lines first (as a plain
+/// store must) only doubles the traffic to memory. The stores are weakly ordered until
+/// [`stream_fence`].
 ///
 /// # Safety
-/// `dst` must be valid for a write of a `T` and not be read or written by another thread
-/// before the writer's next [`stream_fence`]; `T` must have no padding bytes (it is read in
-/// 16-byte pieces).
+/// `dst` must be valid for a write of a `T`, and nothing (this thread included) may read or
+/// write `*dst` before the writer's next [`stream_fence`]; `T` must have no padding bytes (it
+/// is read in 16-byte pieces).
 #[inline(always)]
 #[allow(unsafe_code)]
 unsafe fn store_streaming<T: Copy>(dst: *mut T, v: &T) {
@@ -659,8 +664,8 @@ unsafe fn store_streaming<T: Copy>(dst: *mut T, v: &T) {
     };
 }
 
-/// Order every streaming store of this thread before its later stores (so another thread that
-/// synchronises with it afterwards sees them).
+/// Order every streaming store of this thread before its later loads and stores (so that it
+/// may read them, or another thread that synchronises with it afterwards sees them).
 #[inline(always)]
 fn stream_fence() {
     #[cfg(target_arch = "x86_64")]
@@ -676,6 +681,8 @@ fn stream_fence() {
 fn push_streaming(packets: &mut Vec<TriPacket>, p: TriPacket) {
     let n = packets.len();
     if n == packets.capacity() {
+        // Growing copies the packets stored so far: order them first.
+        stream_fence();
         packets.reserve(BLOCK as usize);
     }
     // SAFETY: slot `n` is within the capacity (reserved above) and past the length; the packet
@@ -703,7 +710,9 @@ const PRIO_INNER: u32 = 2 << 30;
 ///
 /// Areas and positive gains are non-negative floats, whose bit patterns order as their values;
 /// the sign bit is zero and the lowest mantissa bit is dropped (values one ulp apart tie, and
-/// the first child wins).
+/// the first child wins). The one exception, a NaN area (an infinite extent times a zero one,
+/// near the largest floats) with its sign bit set, spills into bit 30 of an inner child's key:
+/// it stays an inner key, above the others, as it was above them with the full bits.
 #[inline(always)]
 fn open_priority(leaf: bool, count: u32, area: f32, gain: f32) -> u32 {
     // Branch-free (which class a child falls in is data, and mispredicted): masks and
@@ -835,7 +844,7 @@ pub fn build_tree<K: RadixKey, const W: usize>(
     let mut top = Vec::with_capacity(ranges.capacity());
     let root = partition(inp, 0, n, &mut ranges, &mut top);
     let parallel = rayon::current_num_threads() > 1 && ranges.len() > 1;
-    // Built by pushes (in parallel: the front groups by pushes, the back ones copied after).
+    // Built by appending (in parallel: the front groups appended, the back ones copied after).
     out.nodes.clear();
     out.packets.clear();
     if root & REF_FLAG != 0 {
@@ -1017,7 +1026,8 @@ fn build_blocks_parallel<K: RadixKey, const W: usize>(
         .enumerate()
         .for_each(|(g, ((dn, dp), o))| {
             for (d, s) in dp.iter_mut().zip(&o.packets) {
-                // SAFETY: a slot of this group's piece, which no other thread touches.
+                // SAFETY: a slot of this group's piece, which no other thread touches (the
+                // closure fences its stores before it returns).
                 #[allow(unsafe_code)]
                 unsafe {
                     store_streaming(d.as_mut_ptr(), s)
