@@ -203,6 +203,7 @@ impl Encoder {
     /// The same encoder with the AVX-512 bit-shuffle expansion of the batch forced on or off
     /// (for tests and benchmarks; any backend); an error when the AVX2 path is not in use, or
     /// when `on` and the CPU lacks AVX-512 VBMI/BITALG.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
     pub fn with_bit_shuffle(mut self, on: bool) -> Result<Encoder, Error> {
         #[cfg(target_arch = "x86_64")]
         if let Some(k) = &mut self.kernel {
@@ -229,6 +230,7 @@ impl Encoder {
     /// [`SizePath::Avx512Lookup`] without AVX-512. Asking for thresholds on a size channel
     /// wider than 8 bits, the AVX-512 lookup on one wider than 6 (or either without a size
     /// channel) keeps the formula, as dispatch would.
+    #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
     pub fn with_size_path(mut self, size: SizePath) -> Result<Encoder, Error> {
         #[cfg(target_arch = "x86_64")]
         if self.kernel.is_some() {

@@ -1346,6 +1346,7 @@ wide_ray!([const O: usize] avx::OctRay<O>);
 wide_ray!([] avx512::Avx512Ray);
 
 /// The octant of `r`: bit `a` set when the near plane of axis `a` is the box's maximum.
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn octant(r: &PreRay) -> usize {
     r.near_is_max[0] as usize | (r.near_is_max[1] as usize) << 1 | (r.near_is_max[2] as usize) << 2
@@ -1359,6 +1360,7 @@ fn octant(r: &PreRay) -> usize {
 /// its AO rays, 1.02-1.035x and 1.03x on stanford-dragon's, 1.01x on sionna-san-francisco's
 /// (alternating runs; the SSE kernels within noise). A macro, not a function taking a
 /// closure or a constructor: that form traced pbrt-bathroom at 0.73x.
+#[cfg(target_arch = "x86_64")]
 macro_rules! prepare {
     ($ray:expr, $r:ident => $lanes:expr) => {{
         let pre = PreRay::new($ray);
@@ -1371,6 +1373,7 @@ macro_rules! prepare {
 }
 
 /// The octant [`PreRay::new`] gives `ray` (see [`octant`]): the direction's sign bits.
+#[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn ray_octant(ray: &Ray) -> usize {
     let d = ray.dir;

@@ -492,6 +492,7 @@ fn v3_available() -> bool {
 }
 
 /// Whether builds run the x86-64-v3 copy of the per-block builders now.
+#[cfg(target_arch = "x86_64")]
 fn use_v3() -> bool {
     !BASELINE_ONLY.load(std::sync::atomic::Ordering::Relaxed) && v3_available()
 }
