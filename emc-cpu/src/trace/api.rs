@@ -52,8 +52,7 @@ use crate::trace::traverse::{
     closest_valid, kernel_of, occluded_valid, KernelChoice, NodeTest, TraceStats,
 };
 use crate::trace::wide::{
-    CollapseScratch, Indexed, Prep, TriPacket, WideBvh, WideNode, WideNode8, WideNodeN, WIDTH,
-    WIDTH8,
+    CollapseScratch, Indexed, Prep, TriPacket, WideBvh, WideNode, WideNode8, WIDTH, WIDTH8,
 };
 use crate::trace::wide_lbvh::{build_fast, mesh_boxes, FastScratch, FastTimes, LEAF_MAX};
 use crate::trace::TraceError;
@@ -689,17 +688,11 @@ impl Accel {
     /// A box around every triangle: the union of the root's children's boxes (which the
     /// builders pad a little for rounding).
     pub fn bounds(&self) -> Aabb {
-        fn root<const W: usize>(n: &WideNodeN<W>) -> Aabb {
-            (0..W)
-                .map(|lane| n.child_box(lane))
-                .filter(Aabb::is_valid)
-                .fold(Aabb::EMPTY, |a, b| a.union(&b))
-        }
-        match (self.bvh.nodes8.first(), self.bvh.nodes.first()) {
-            (Some(n), _) => root(n),
-            (None, Some(n)) => root(n),
-            (None, None) => Aabb::EMPTY,
-        }
+        self.bvh
+            .root_child_boxes()
+            .iter()
+            .filter(|b| b.is_valid())
+            .fold(Aabb::EMPTY, |a, b| a.union(b))
     }
 
     /// The wide BVH being traced.

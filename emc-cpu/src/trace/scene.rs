@@ -46,7 +46,6 @@ use rayon::prelude::*;
 use crate::trace::api::{Accel, BuildOptions, Preset};
 use crate::trace::intersect::{slab_test, Hit, PreRay, Ray};
 use crate::trace::traverse::{closest_items, occluded_items};
-use crate::trace::wide::{EMPTY, WIDTH, WIDTH8};
 use crate::trace::TraceError;
 
 /// A geometry's id in its scene: the order it was added in, from 0.
@@ -485,17 +484,7 @@ impl Scene {
         let Some(w) = tree.map(Accel::wide_bvh) else {
             return vec![self.bounds];
         };
-        let boxes: Vec<Aabb> = match (w.nodes8.first(), w.nodes.first()) {
-            (Some(r), _) => (0..WIDTH8)
-                .filter(|&l| r.child[l] != EMPTY)
-                .map(|l| r.child_box(l))
-                .collect(),
-            (None, Some(r)) => (0..WIDTH)
-                .filter(|&l| r.child[l] != EMPTY)
-                .map(|l| r.child_box(l))
-                .collect(),
-            (None, None) => Vec::new(),
-        };
+        let boxes = w.root_child_boxes();
         if boxes.is_empty() {
             vec![self.bounds]
         } else {

@@ -345,6 +345,22 @@ impl WideBvh {
         }
     }
 
+    /// The boxes of the root's children in use: of the 8-wide tree when it is built, else of
+    /// the 4-wide one; none for an empty structure.
+    pub(crate) fn root_child_boxes(&self) -> Vec<Aabb> {
+        fn of<const W: usize>(n: &WideNodeN<W>) -> Vec<Aabb> {
+            (0..W)
+                .filter(|&l| n.child[l] != EMPTY)
+                .map(|l| n.child_box(l))
+                .collect()
+        }
+        match (self.nodes8.first(), self.nodes.first()) {
+            (Some(n), _) => of(n),
+            (None, Some(n)) => of(n),
+            (None, None) => Vec::new(),
+        }
+    }
+
     /// A structure with no tree (traces nothing).
     pub fn empty() -> WideBvh {
         WideBvh {
