@@ -145,6 +145,18 @@ impl PreRay {
     /// Precompute the constants of `ray` (which must satisfy [`Ray::is_valid`]).
     #[inline]
     pub fn new(ray: &Ray) -> PreRay {
+        let mut r = PreRay::boxes(ray);
+        r.add_triangle_constants();
+        r
+    }
+
+    /// The box test's constants of `ray` alone (`ray` must satisfy [`Ray::is_valid`]): the
+    /// triangle test's `k` and `shear` are left unset (`shear` NaN) until
+    /// [`PreRay::add_triangle_constants`], which makes them exactly as [`PreRay::new`] does.
+    /// For the kernels that make them at the first leaf a ray reaches: most primary rays
+    /// of an object seen from outside reach none.
+    #[inline(always)]
+    pub fn boxes(ray: &Ray) -> PreRay {
         let org = ray.origin.to_array();
         let dir = ray.dir.to_array();
         // Divisions four at a time (one `divps` where a scalar `divss` each cost a per-ray
@@ -156,6 +168,23 @@ impl PreRay {
             dir[1].is_sign_negative(),
             dir[2].is_sign_negative(),
         ];
+        PreRay {
+            org,
+            dir,
+            inv,
+            inv_far: inv.map(|i| i * FAR_WIDEN),
+            near_is_max,
+            k: [0, 1, 2],
+            shear: [f32::NAN; 3],
+            tnear: ray.tnear,
+            tfar: ray.tfar,
+        }
+    }
+
+    /// Make the triangle test's constants (see [`PreRay::boxes`]).
+    #[inline(always)]
+    pub fn add_triangle_constants(&mut self) {
+        let dir = self.dir;
         let a = [dir[0].abs(), dir[1].abs(), dir[2].abs()];
         // Largest component; ties go to the lower axis (deterministic).
         let kz = if a[0] >= a[1] && a[0] >= a[2] {
@@ -171,18 +200,8 @@ impl PreRay {
             core::mem::swap(&mut kx, &mut ky);
         }
         let s4 = glam::Vec4::new(dir[kx], dir[ky], 1.0, 1.0) / glam::Vec4::splat(dir[kz]);
-        let shear = [s4.x, s4.y, s4.z];
-        PreRay {
-            org,
-            dir,
-            inv,
-            inv_far: inv.map(|i| i * FAR_WIDEN),
-            near_is_max,
-            k: [kx, ky, kz],
-            shear,
-            tnear: ray.tnear,
-            tfar: ray.tfar,
-        }
+        self.k = [kx, ky, kz];
+        self.shear = [s4.x, s4.y, s4.z];
     }
 }
 
@@ -251,6 +270,10 @@ fn edge_f64(ax: f32, ay: f32, bx: f32, by: f32) -> f32 {
 /// triangles and rays in the triangle's plane never hit.
 #[inline(always)]
 pub fn triangle_test(r: &PreRay, v: &[[f32; 3]; 3], tmax: f32) -> Option<(f32, f32, f32)> {
+    debug_assert!(
+        !r.shear[2].is_nan(),
+        "triangle test of a ray without its constants"
+    );
     let [kx, ky, kz] = r.k;
     let [sx, sy, sz] = r.shear;
     let rel = |p: &[f32; 3]| [p[0] - r.org[0], p[1] - r.org[1], p[2] - r.org[2]];
