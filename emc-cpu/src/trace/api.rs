@@ -648,7 +648,15 @@ impl Accel {
     /// [`Accel::occluded`] of a ray the caller has checked ([`Ray::is_valid`]).
     #[inline]
     pub(crate) fn occluded_valid(&self, ray: &Ray) -> bool {
-        occluded_valid::<false>(&self.bvh, ray, self.kernel, &mut TraceStats::default())
+        occluded_valid::<false, false>(&self.bvh, ray, self.kernel, &mut TraceStats::default())
+    }
+
+    /// [`Accel::occluded_valid`] of a ray entering an instance of this mesh (which often
+    /// misses the root's children): the same answer, the triangle constants made only after
+    /// the root test.
+    #[inline]
+    pub(crate) fn occluded_entered(&self, ray: &Ray) -> bool {
+        occluded_valid::<false, true>(&self.bvh, ray, self.kernel, &mut TraceStats::default())
     }
 
     /// Closest hits of many rays, in parallel; one answer per ray, in order.

@@ -679,7 +679,7 @@ impl Scene {
                     return false;
                 }
                 match inst.scene.lone_mesh() {
-                    Some((a, mask)) => mask & o.mask != 0 && a.occluded_valid(&o),
+                    Some((a, mask)) => mask & o.mask != 0 && a.occluded_entered(&o),
                     None => inst.scene.any(&o),
                 }
             }
