@@ -113,7 +113,9 @@ const GAMMA3: f32 = 3.0 * (f32::EPSILON * 0.5) / (1.0 - 3.0 * (f32::EPSILON * 0.
 /// Ize's widening factor for the far slab distance, `1 + 2γ(3)`, rounded up.
 pub const FAR_WIDEN: f32 = 1.0 + 2.0 * GAMMA3;
 
-/// The per-ray constants of both tests, computed once per ray.
+/// The per-ray constants of both tests, computed once per ray ([`PreRay::new`]; the 8-wide
+/// SIMD kernels make the box constants first and the triangle test's only once the ray
+/// enters a child of the root).
 ///
 /// Box test: `inv = 1/dir` (±inf for a ±0 component) and, per axis, which box plane is near
 /// (`near_is_max[a]`, taken from the sign bit of `dir[a]`, so `-0.0` counts as negative).
@@ -153,10 +155,10 @@ impl PreRay {
     /// The box test's constants of `ray` alone (`ray` must satisfy [`Ray::is_valid`]): the
     /// triangle test's `k` and `shear` are left unset (`shear` NaN) until
     /// [`PreRay::add_triangle_constants`], which makes them exactly as [`PreRay::new`] does.
-    /// For the kernels that make them at the first leaf a ray reaches: most primary rays
-    /// of an object seen from outside reach none.
+    /// For the kernels that make them only once the ray enters a child of the root: most
+    /// primary rays of an object seen from outside enter none.
     #[inline(always)]
-    pub fn boxes(ray: &Ray) -> PreRay {
+    pub(crate) fn boxes(ray: &Ray) -> PreRay {
         let org = ray.origin.to_array();
         let dir = ray.dir.to_array();
         // Divisions four at a time (one `divps` where a scalar `divss` each cost a per-ray
@@ -183,7 +185,7 @@ impl PreRay {
 
     /// Make the triangle test's constants (see [`PreRay::boxes`]).
     #[inline(always)]
-    pub fn add_triangle_constants(&mut self) {
+    pub(crate) fn add_triangle_constants(&mut self) {
         let dir = self.dir;
         let a = [dir[0].abs(), dir[1].abs(), dir[2].abs()];
         // Largest component; ties go to the lower axis (deterministic).

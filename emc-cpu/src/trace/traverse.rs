@@ -741,6 +741,10 @@ mod sse {
         /// test, whose low lanes they are).
         #[inline(always)]
         pub fn with(r: &PreRay, org: [__m128; 3], tnear: __m128) -> SseRay {
+            debug_assert!(
+                !r.shear[2].is_nan(),
+                "packet test of a ray without its constants"
+            );
             let near = [0, 1, 2].map(|a| 2 * a + r.near_is_max[a] as usize);
             // SAFETY: SSE is part of the x86-64 baseline; these intrinsics only move values.
             unsafe {
@@ -1061,8 +1065,8 @@ trait PacketTest {
     }
 }
 
-/// The per-ray node tests of one traversal: a `W`-wide node test plus the (4-wide) triangle
-/// packet test.
+/// The per-ray node test of one traversal, `W` wide (the triangle packet test is a
+/// [`PacketTest`]).
 trait Lanes<const W: usize> {
     /// Test the `W` child boxes of `node` against `[tnear, tfar]`.
     fn test(&self, node: &WideNodeN<W>, r: &PreRay, tfar: f32) -> LaneHitsN<W>;
@@ -1722,7 +1726,8 @@ unsafe fn closest_avx2<const STATS: bool>(
 
 /// An 8-wide SIMD node test of the 8-wide tree (only built where the CPU has the test's
 /// features); its leaves take the SSE packet test, made from the wide test's origin and
-/// `tnear` registers when the walk reaches its first leaf ([`closest_wide`]).
+/// `tnear` registers (after the root test in [`closest_wide`] and [`occluded_entry`], before
+/// the walk in [`occluded_wide`]).
 #[cfg(target_arch = "x86_64")]
 struct WideLanes<T>(T);
 
@@ -1976,7 +1981,8 @@ pub(crate) fn closest_valid<const STATS: bool>(
 #[cfg(target_arch = "x86_64")]
 macro_rules! simd_kernels {
     ($lanes:ty, $feat:literal, $what:literal, $occluded:ident, $citems:ident, $oitems:ident) => {
-        #[doc = concat!("[`occluded`] on the 8-wide tree with the ", $what, " node test.")]
+        #[doc = concat!("[`occluded`] on the 8-wide tree with the ", $what, " node test;")]
+        /// with `ENTRY`, for a ray entering an instance ([`occluded_entry`]).
         ///
         /// # Safety
         #[doc = concat!("The CPU must have ", $what, ".")]
@@ -2112,9 +2118,9 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W> + PacketTest>(
 /// [`closest_in`] of an 8-wide SIMD kernel, whose ray comes with its box constants alone
 /// ([`PreRay::boxes`]): the root is tested first, and only a ray that enters one of its
 /// children makes the triangle test's constants (from `ray`) and walks on from there, so it
-/// visits what one walk would. Primary rays of an object seen from outside mostly miss its
-/// root box (stanford-dragon: 82% of the 77% of its primary rays that miss it, pbrt-crown
-/// 89%, sionna-san-francisco 95%). Measured against every ray making all its constants
+/// visits what one walk would. Primary rays of an object seen from outside mostly enter none
+/// of the root's children: of the primary rays that miss the object, 82% on stanford-dragon
+/// (77% of its rays miss), 89% on pbrt-crown, 95% on sionna-san-francisco. Measured against every ray making all its constants
 /// first (the kernel before), quality trees, the two interleaved pass by pass in one process,
 /// medians of 9 passes on an AVX2 Zen 3: primary rays in 0.80x the time on stanford-dragon
 /// (the rays that miss it 0.55x, those that hit 1.01x), 0.83x on sionna-san-francisco, 0.57x
@@ -2469,8 +2475,9 @@ fn occluded_wide<const STATS: bool, T: WideRay>(
     occluded_walk_compact::<STATS, T>(bvh, r, lanes, stats, &mut v)
 }
 
-/// [`occluded_wide`] for a ray entering an instance, whose root box it often misses though it
-/// entered the instance's box (a rotated object's box is loose): the ray comes with its box
+/// [`occluded_wide`] for a ray entering an instance of a lone mesh, which often enters none of
+/// the root's children though it entered the instance's box (a rotated object's box is
+/// loose): the ray comes with its box
 /// constants alone ([`PreRay::boxes`]), and only one that enters a child of the root makes the
 /// triangle test's (from `ray`) and walks on. Stanford-dragon × 1000 (`emc compare
 /// --instances 1000`, two runs each way): AO 0.76-0.77x → 0.81x the best peer's speed.
