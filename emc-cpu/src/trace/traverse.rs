@@ -2657,7 +2657,21 @@ fn occluded_root<const STATS: bool, T: WideRay>(
     stats: &mut TraceStats,
     cull: f32,
 ) -> [u32; 2] {
-    let node = &bvh.nodes8[0];
+    occluded_step::<STATS, T>(&bvh.nodes8[0], r, lanes, stats, cull)
+}
+
+/// One node of the any-hit walk: the test counted, then the node's leaf flags and entered
+/// lanes, `[leaves, entered]` (the flags are read first: their load does not wait for the
+/// test).
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn occluded_step<const STATS: bool, T: WideRay>(
+    node: &WideNode8,
+    r: &PreRay,
+    lanes: &WideLanes<T>,
+    stats: &mut TraceStats,
+    cull: f32,
+) -> [u32; 2] {
     if STATS {
         stats.node_tests += 1;
     }
@@ -2724,12 +2738,7 @@ fn occluded_walk_compact_from<const STATS: bool, T: WideRay>(
             None => return false,
         };
         node = &nodes[code as usize];
-        if STATS {
-            stats.node_tests += 1;
-        }
-        // The leaf flags first: their load does not wait for the test.
-        lm = lanes.leaves(node);
-        (mask, _) = lanes.test(node, r, cull);
+        [lm, mask] = occluded_step::<STATS, T>(node, r, lanes, stats, cull);
     }
 }
 
