@@ -257,6 +257,36 @@ fn rebuild_equals_a_fresh_build_of_the_moved_mesh() {
         .unwrap();
         for (preset, width) in PRESETS.into_iter().flat_map(|p| [(p, 8), (p, 4)]) {
             let mut a = build(&s, preset, width);
+            // Over the same vertices first: the fast preset's sort then takes the previous
+            // order whole (its hint serves), and the tree must still be the fresh build's.
+            let first = a.wide_bvh().clone();
+            a.rebuild(&s.vertices).unwrap();
+            let x = a.wide_bvh();
+            assert!(
+                x.nodes8 == first.nodes8 && x.nodes == first.nodes && x.packets == first.packets,
+                "{name} {preset:?} width {width}: a rebuild over the same vertices differs"
+            );
+            // A few vertices pulled towards the middle (the bounds stay, so most codes do too
+            // and the fast preset's sort merges the changed ones into the previous order).
+            let mid = s.vertices.iter().fold(Vec3::ZERO, |a, &v| a + v) / s.vertices.len() as f32;
+            let mut v = s.vertices.clone();
+            for p in v.iter_mut().step_by(97) {
+                *p = p.lerp(mid, 0.3);
+            }
+            a.rebuild(&v).unwrap();
+            let fresh = build(
+                &Mesh {
+                    vertices: v,
+                    ..s.clone()
+                },
+                preset,
+                width,
+            );
+            let (x, y) = (a.wide_bvh(), fresh.wide_bvh());
+            assert!(
+                x.nodes8 == y.nodes8 && x.nodes == y.nodes && x.packets == y.packets,
+                "{name} {preset:?} width {width}: a rebuild with a few vertices moved differs"
+            );
             for frame in 1..=3 {
                 let v = moved(&s.vertices, frame as f32);
                 a.rebuild(&v).unwrap();
@@ -669,6 +699,7 @@ fn fast_build_and_refit_refuse_mismatched_inputs() {
             &s.indices,
             &layout,
             leaf,
+            0,
             &mut FastScratch::default(),
             &mut Vec::new(),
             &mut Vec::new(),

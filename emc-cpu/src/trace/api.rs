@@ -412,7 +412,13 @@ pub struct Accel {
     refit: Option<(RefitPlan, bool)>,
     /// Where the buffers go when the structure is dropped (built with [`Accel::build_in`]).
     spare: Option<Arc<Spare>>,
+    /// This structure among all built in the process: a context whose last fast build was
+    /// this one's keeps its sorted order as the hint of a rebuild (a fresh build has none).
+    token: u64,
 }
+
+/// The next [`Accel`]'s token.
+static NEXT_TOKEN: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
 impl Drop for Accel {
     fn drop(&mut self) {
@@ -466,8 +472,10 @@ impl Accel {
             phases: FastTimes::default(),
             refit: None,
             spare: Some(Arc::clone(&ctx.spare)),
+            token: NEXT_TOKEN.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
         };
         build_over(
+            a.token,
             &mut a.bvh,
             &mut a.phases,
             &a.opts,
@@ -528,6 +536,7 @@ impl Accel {
         }
         let width = self.test.width();
         let r = build_over(
+            self.token,
             &mut self.bvh,
             &mut self.phases,
             &self.opts,
@@ -620,6 +629,7 @@ impl Accel {
             phases: FastTimes::default(),
             refit: None,
             spare: None,
+            token: NEXT_TOKEN.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
         })
     }
 
@@ -721,8 +731,11 @@ impl Accel {
 }
 
 /// Build `bvh` (its buffers reused) over the mesh with `opts` at `width`, in the scratch of
-/// `ctx`, recording the fast path's phases in `phases`.
+/// `ctx`, recording the fast path's phases in `phases`; `token` is the structure's (the fast
+/// path's sort takes its previous order as a hint when `ctx` still holds it).
+#[allow(clippy::too_many_arguments)]
 fn build_over(
+    token: u64,
     bvh: &mut WideBvh,
     phases: &mut FastTimes,
     opts: &BuildOptions,
@@ -744,6 +757,7 @@ fn build_over(
                 indices,
                 &layout,
                 fast_leaf_max(opts),
+                token,
                 &mut ctx.fast8,
                 &mut bvh.nodes8,
                 &mut bvh.packets,
@@ -756,6 +770,7 @@ fn build_over(
                 indices,
                 &layout,
                 fast_leaf_max(opts),
+                token,
                 &mut ctx.fast4,
                 &mut bvh.nodes,
                 &mut bvh.packets,

@@ -1088,6 +1088,10 @@ pub struct FastScratch<const W: usize> {
     kbuf32: Vec<u32>,
     ids: Vec<u32>,
     vbuf: Vec<u32>,
+    /// The structure (its [`build_fast`] `owner`), triangle count and code width (32 or 64)
+    /// of the last build, whose sorted codes and `ids` are still here: a rebuild of that
+    /// structure sorts only the codes that changed and merges them in.
+    hint: Option<(u64, usize, u32)>,
     /// The serial block builder's scratch.
     block: BlockScratch,
     /// The parallel block groups' buffers.
@@ -1105,7 +1109,7 @@ pub struct FastTimes {
     pub layout: Option<emc_core::LayoutSpec>,
     /// Encoder set-up and codes.
     pub encode: f64,
-    /// Radix sort.
+    /// Radix sort (a rebuild's hinted sort: see [`crate::sort`]).
     pub sort: f64,
     /// The top-down wide tree with its leaf packets.
     pub tree: f64,
@@ -1113,14 +1117,18 @@ pub struct FastTimes {
 
 /// The fast build: a `W`-wide tree over the mesh (`W` = 4 or 8) into `bvh`'s buffers, codes of
 /// `layout`, leaves of at most `leaf_max` triangles (`1..=`[`LEAF_MAX`]), scratch from
-/// `scratch`. Fails on a leaf size outside that range, an empty mesh, an index naming no
-/// vertex, a non-finite vertex, or too many triangles.
+/// `scratch`. `owner` names the structure built: when the scratch's last build was the same
+/// structure's over as many triangles (a rebuild), only the codes that changed since are
+/// sorted and merged into that build's order.
+/// Fails on a leaf size outside that range, an empty mesh, an index naming no vertex, a
+/// non-finite vertex, or too many triangles.
 #[allow(clippy::too_many_arguments)]
 pub fn build_fast<const W: usize>(
     vertices: &[Vec3],
     indices: &[[u32; 3]],
     layout: &crate::auto::LayoutChoice,
     leaf_max: u32,
+    owner: u64,
     scratch: &mut FastScratch<W>,
     nodes: &mut Vec<WideNodeN<W>>,
     packets: &mut Vec<TriPacket>,
@@ -1157,14 +1165,34 @@ pub fn build_fast<const W: usize>(
     times.layout = layout.is_auto().then_some(spec);
     let enc = emc_core::Encoder::new(&spec, &frame);
     let s = &mut *scratch;
-    let tree = if enc.layout().fits_u32() {
-        crate::buffers::resized(&mut s.codes32, n, 0);
-        crate::encode::encode_parallel_u32(&enc, &s.aabbs, &mut s.codes32)
-            .map_err(TraceError::Encode)?;
+    let bits = if enc.layout().fits_u32() { 32 } else { 64 };
+    // A rebuild of the same structure keeps the last build's sorted codes and order: the new
+    // codes go beside them and only those that changed are sorted (`sort_with_ids_hinted`).
+    let hinted = s.hint.take() == Some((owner, n, bits));
+    let tree = if bits == 32 {
+        let out = if hinted {
+            &mut s.kbuf32
+        } else {
+            &mut s.codes32
+        };
+        crate::buffers::resized(out, n, 0);
+        crate::encode::encode_parallel_u32(&enc, &s.aabbs, out).map_err(TraceError::Encode)?;
         let t2 = Instant::now();
         times.encode = (t2 - t1).as_secs_f64() * 1e3;
-        crate::sort::sort_with_ids(&mut s.codes32, &mut s.ids, &mut s.kbuf32, &mut s.vbuf)
-            .map_err(TraceError::Sort)?;
+        if hinted {
+            crate::sort::sort_with_ids_hinted(
+                &mut s.codes32,
+                &mut s.kbuf32,
+                &mut s.ids,
+                &mut s.vbuf,
+            )
+            .map(|_| ())
+        } else {
+            crate::sort::sort_with_ids(&mut s.codes32, &mut s.ids, &mut s.kbuf32, &mut s.vbuf)
+                .map(|_| ())
+        }
+        .map_err(TraceError::Sort)?;
+        s.hint = Some((owner, n, bits));
         let t3 = Instant::now();
         times.sort = (t3 - t2).as_secs_f64() * 1e3;
         let inp = Inputs {
@@ -1186,13 +1214,29 @@ pub fn build_fast<const W: usize>(
             t3,
         )?
     } else {
-        crate::buffers::resized(&mut s.codes64, n, 0);
-        crate::encode::encode_parallel(&enc, &s.aabbs, &mut s.codes64)
-            .map_err(TraceError::Encode)?;
+        let out = if hinted {
+            &mut s.kbuf64
+        } else {
+            &mut s.codes64
+        };
+        crate::buffers::resized(out, n, 0);
+        crate::encode::encode_parallel(&enc, &s.aabbs, out).map_err(TraceError::Encode)?;
         let t2 = Instant::now();
         times.encode = (t2 - t1).as_secs_f64() * 1e3;
-        crate::sort::sort_with_ids(&mut s.codes64, &mut s.ids, &mut s.kbuf64, &mut s.vbuf)
-            .map_err(TraceError::Sort)?;
+        if hinted {
+            crate::sort::sort_with_ids_hinted(
+                &mut s.codes64,
+                &mut s.kbuf64,
+                &mut s.ids,
+                &mut s.vbuf,
+            )
+            .map(|_| ())
+        } else {
+            crate::sort::sort_with_ids(&mut s.codes64, &mut s.ids, &mut s.kbuf64, &mut s.vbuf)
+                .map(|_| ())
+        }
+        .map_err(TraceError::Sort)?;
+        s.hint = Some((owner, n, bits));
         let t3 = Instant::now();
         times.sort = (t3 - t2).as_secs_f64() * 1e3;
         let inp = Inputs {
