@@ -1091,7 +1091,7 @@ pub struct FastScratch<const W: usize> {
     /// The structure (its [`build_fast`] `owner`), triangle count and code width (32 or 64)
     /// of the last build, whose sorted codes and `ids` are still here: a rebuild of that
     /// structure sorts only the codes that changed and merges them in.
-    hint: Option<(u64, usize, u32)>,
+    hint: Option<SortRecord>,
     /// The serial block builder's scratch.
     block: BlockScratch,
     /// The parallel block groups' buffers.
@@ -1166,99 +1166,100 @@ pub fn build_fast<const W: usize>(
     let enc = emc_core::Encoder::new(&spec, &frame);
     let s = &mut *scratch;
     let bits = if enc.layout().fits_u32() { 32 } else { 64 };
-    // A rebuild of the same structure keeps the last build's sorted codes and order: the new
-    // codes go beside them and only those that changed are sorted (`sort_with_ids_hinted`).
-    let hinted = s.hint.take() == Some((owner, n, bits));
+    let setup = Setup {
+        vertices,
+        indices,
+        pad,
+        leaf_max,
+        max_abs,
+        t1,
+    };
+    let hint = (&mut s.hint, (owner, n, bits));
+    let bufs = (&mut s.ids, &mut s.vbuf, &mut s.block, &mut s.groups);
     let tree = if bits == 32 {
-        let out = if hinted {
-            &mut s.kbuf32
-        } else {
-            &mut s.codes32
-        };
-        crate::buffers::resized(out, n, 0);
-        crate::encode::encode_parallel_u32(&enc, &s.aabbs, out).map_err(TraceError::Encode)?;
-        let t2 = Instant::now();
-        times.encode = (t2 - t1).as_secs_f64() * 1e3;
-        if hinted {
-            crate::sort::sort_with_ids_hinted(
-                &mut s.codes32,
-                &mut s.kbuf32,
-                &mut s.ids,
-                &mut s.vbuf,
-            )
-            .map(|_| ())
-        } else {
-            crate::sort::sort_with_ids(&mut s.codes32, &mut s.ids, &mut s.kbuf32, &mut s.vbuf)
-                .map(|_| ())
-        }
-        .map_err(TraceError::Sort)?;
-        s.hint = Some((owner, n, bits));
-        let t3 = Instant::now();
-        times.sort = (t3 - t2).as_secs_f64() * 1e3;
-        let inp = Inputs {
-            keys: &s.codes32,
-            ids: &s.ids,
-            vertices,
-            indices,
-            pad,
-            leaf_max,
-        };
-        finish_tree(
-            &inp,
-            nodes,
-            packets,
-            &mut s.block,
-            &mut s.groups,
-            max_abs,
-            times,
-            t3,
-        )?
+        let encode = |out: &mut [u32]| crate::encode::encode_parallel_u32(&enc, &s.aabbs, out);
+        let keys = (&mut s.codes32, &mut s.kbuf32);
+        codes_to_tree(keys, bufs, hint, encode, &setup, nodes, packets, times)?
     } else {
-        let out = if hinted {
-            &mut s.kbuf64
-        } else {
-            &mut s.codes64
-        };
-        crate::buffers::resized(out, n, 0);
-        crate::encode::encode_parallel(&enc, &s.aabbs, out).map_err(TraceError::Encode)?;
-        let t2 = Instant::now();
-        times.encode = (t2 - t1).as_secs_f64() * 1e3;
-        if hinted {
-            crate::sort::sort_with_ids_hinted(
-                &mut s.codes64,
-                &mut s.kbuf64,
-                &mut s.ids,
-                &mut s.vbuf,
-            )
-            .map(|_| ())
-        } else {
-            crate::sort::sort_with_ids(&mut s.codes64, &mut s.ids, &mut s.kbuf64, &mut s.vbuf)
-                .map(|_| ())
-        }
-        .map_err(TraceError::Sort)?;
-        s.hint = Some((owner, n, bits));
-        let t3 = Instant::now();
-        times.sort = (t3 - t2).as_secs_f64() * 1e3;
-        let inp = Inputs {
-            keys: &s.codes64,
-            ids: &s.ids,
-            vertices,
-            indices,
-            pad,
-            leaf_max,
-        };
-        finish_tree(
-            &inp,
-            nodes,
-            packets,
-            &mut s.block,
-            &mut s.groups,
-            max_abs,
-            times,
-            t3,
-        )?
+        let encode = |out: &mut [u64]| crate::encode::encode_parallel(&enc, &s.aabbs, out);
+        let keys = (&mut s.codes64, &mut s.kbuf64);
+        codes_to_tree(keys, bufs, hint, encode, &setup, nodes, packets, times)?
     };
     Ok(tree)
+}
+
+/// Which sort a fast scratch holds the result of: the structure built (the `owner` of
+/// [`build_fast`]), its triangle count and its code bits (32 or 64).
+type SortRecord = (u64, usize, u32);
+
+/// What [`codes_to_tree`] needs of [`build_fast`] besides the buffers.
+struct Setup<'a> {
+    vertices: &'a [Vec3],
+    indices: &'a [[u32; 3]],
+    pad: f32,
+    leaf_max: u32,
+    max_abs: f32,
+    /// When the encoding began.
+    t1: std::time::Instant,
+}
+
+/// Encode by `encode`, sort, and build the tree over the sorted codes, timing the phases.
+/// `keys` are the codes buffer and its sort scratch. `hint` is the scratch's record of its
+/// last sort and this build's (owner, triangles, code bits): when they agree (a rebuild of the
+/// same structure) the codes buffer still holds that sort's codes (`ids` their order), so the
+/// new codes go into the scratch and only those that changed are sorted
+/// (`sort_with_ids_hinted`); once sorted, the record is this build's.
+#[allow(clippy::too_many_arguments)]
+fn codes_to_tree<K: RadixKey, const W: usize>(
+    (codes, kbuf): (&mut Vec<K>, &mut Vec<K>),
+    (ids, vbuf, block, groups): (
+        &mut Vec<u32>,
+        &mut Vec<u32>,
+        &mut BlockScratch,
+        &mut Vec<GroupOut<W>>,
+    ),
+    (hint, this): (&mut Option<SortRecord>, SortRecord),
+    encode: impl FnOnce(&mut [K]) -> Result<(), emc_core::Error>,
+    setup: &Setup<'_>,
+    nodes: &mut Vec<WideNodeN<W>>,
+    packets: &mut Vec<TriPacket>,
+    times: &mut FastTimes,
+) -> Result<FastTree, TraceError> {
+    use std::time::Instant;
+    let n = setup.indices.len();
+    let hinted = hint.take() == Some(this);
+    let out = if hinted { &mut *kbuf } else { &mut *codes };
+    crate::buffers::resized(out, n, K::default());
+    encode(out).map_err(TraceError::Encode)?;
+    let t2 = Instant::now();
+    times.encode = (t2 - setup.t1).as_secs_f64() * 1e3;
+    if hinted {
+        crate::sort::sort_with_ids_hinted(codes, kbuf, ids, vbuf).map(|_| ())
+    } else {
+        crate::sort::sort_with_ids(codes, ids, kbuf, vbuf).map(|_| ())
+    }
+    .map_err(TraceError::Sort)?;
+    *hint = Some(this);
+    let t3 = Instant::now();
+    times.sort = (t3 - t2).as_secs_f64() * 1e3;
+    let inp = Inputs {
+        keys: codes,
+        ids,
+        vertices: setup.vertices,
+        indices: setup.indices,
+        pad: setup.pad,
+        leaf_max: setup.leaf_max,
+    };
+    finish_tree(
+        &inp,
+        nodes,
+        packets,
+        block,
+        groups,
+        setup.max_abs,
+        times,
+        t3,
+    )
 }
 
 /// What the fast build's tree came to.
