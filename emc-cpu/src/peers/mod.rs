@@ -28,8 +28,10 @@ pub mod obvhs;
 pub const CHUNK: usize = 4096;
 
 /// MXCSR bit 15: flush-to-zero.
+#[cfg(target_arch = "x86_64")]
 const MXCSR_FTZ: u32 = 1 << 15;
 /// MXCSR bit 6: denormals-are-zero.
+#[cfg(target_arch = "x86_64")]
 const MXCSR_DAZ: u32 = 1 << 6;
 
 /// Sets flush-to-zero and denormals-are-zero on the current thread (x86-64 SSE control
