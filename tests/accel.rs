@@ -266,8 +266,8 @@ fn rebuild_equals_a_fresh_build_of_the_moved_mesh() {
                 x.nodes8 == first.nodes8 && x.nodes == first.nodes && x.packets == first.packets,
                 "{name} {preset:?} width {width}: a rebuild over the same vertices differs"
             );
-            // A few vertices pulled towards the middle (the bounds stay, so most codes do too
-            // and the fast preset's sort merges the changed ones into the previous order).
+            // A few vertices pulled towards the middle (the others keep the bounds, so most codes
+            // stay and the fast preset's sort merges the changed ones into the previous order).
             let mid = s.vertices.iter().fold(Vec3::ZERO, |a, &v| a + v) / s.vertices.len() as f32;
             let mut v = s.vertices.clone();
             for p in v.iter_mut().step_by(97) {

@@ -5,8 +5,10 @@
 //!
 //! Builds, as the peer harness times Embree: one warm-up build, then **cold** = median of
 //! [`BUILDS`] builds of fresh objects (the previous one dropped first), **warm** = median of
-//! [`BUILDS`] rebuilds of the kept one (`Accel::rebuild_in`; Embree: `rtcUpdateGeometryBuffer`
-//! and a commit of the same scene; obvhs: its PLOC builder and tree reused). Wall time; the
+//! [`BUILDS`] rebuilds of the kept one over the same vertices (`Accel::rebuild_in`, whose fast
+//! preset then sorts in one pass: no code changed; Embree: `rtcUpdateGeometryBuffer` and a
+//! commit of the same scene; obvhs: its PLOC builder and tree reused; moving meshes:
+//! `--frames`). Wall time; the
 //! thread pools exist before the clock starts (one rayon pool for emc and obvhs, one Embree
 //! device), and emc builds in one [`BuildContext`] per configuration, its device: scratch
 //! memory kept from build to build (the warm-up build fills it), every `Accel` fresh.
@@ -773,8 +775,8 @@ fn print_targets(rows: &[Row], ntris: usize) {
         );
     }
     println!(
-        "(the warm sort keeps the last build's order and sorts only the codes that changed: one \
-         pass when none did, as here, the same rebuild over the same vertices)"
+        "(warm = rebuilds over the same vertices: the fast preset's sort keeps the last order and \
+         sorts only changed codes, here none; a moving mesh changes them: see --frames)"
     );
 }
 

@@ -386,8 +386,9 @@ impl Spare {
 }
 
 impl Clone for BuildContext {
-    /// An empty context: scratch holds nothing a build reads, so a copy of an
-    /// [`Accel`] does not copy its build buffers.
+    /// An empty context: a copy of an [`Accel`] does not copy its build buffers (the only
+    /// thing a build reads from them, the fast preset's last sorted order, is a rebuild's
+    /// shortcut; its next build sorts from scratch).
     fn clone(&self) -> BuildContext {
         BuildContext::default()
     }
@@ -412,8 +413,9 @@ pub struct Accel {
     refit: Option<(RefitPlan, bool)>,
     /// Where the buffers go when the structure is dropped (built with [`Accel::build_in`]).
     spare: Option<Arc<Spare>>,
-    /// This structure among all built in the process: a context whose last fast build was
-    /// this one's keeps its sorted order as the hint of a rebuild (a fresh build has none).
+    /// The build this structure came from (a clone keeps it): a context whose last fast build
+    /// had this token keeps that sorted order for the rebuild's sort; every fresh build takes a
+    /// new token, so it never has one.
     token: u64,
 }
 

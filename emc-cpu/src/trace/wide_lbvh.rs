@@ -1088,6 +1088,9 @@ pub struct FastScratch<const W: usize> {
     kbuf32: Vec<u32>,
     ids: Vec<u32>,
     vbuf: Vec<u32>,
+    /// The set-aside lists of a rebuild's sort (32- and 64-bit codes).
+    rest32: Vec<(u32, u32)>,
+    rest64: Vec<(u64, u32)>,
     /// The structure (its [`build_fast`] `owner`), triangle count and code width (32 or 64)
     /// of the last build, whose sorted codes and `ids` are still here: a rebuild of that
     /// structure sorts only the codes that changed and merges them in.
@@ -1178,11 +1181,11 @@ pub fn build_fast<const W: usize>(
     let bufs = (&mut s.ids, &mut s.vbuf, &mut s.block, &mut s.groups);
     let tree = if bits == 32 {
         let encode = |out: &mut [u32]| crate::encode::encode_parallel_u32(&enc, &s.aabbs, out);
-        let keys = (&mut s.codes32, &mut s.kbuf32);
+        let keys = (&mut s.codes32, &mut s.kbuf32, &mut s.rest32);
         codes_to_tree(keys, bufs, hint, encode, &setup, nodes, packets, times)?
     } else {
         let encode = |out: &mut [u64]| crate::encode::encode_parallel(&enc, &s.aabbs, out);
-        let keys = (&mut s.codes64, &mut s.kbuf64);
+        let keys = (&mut s.codes64, &mut s.kbuf64, &mut s.rest64);
         codes_to_tree(keys, bufs, hint, encode, &setup, nodes, packets, times)?
     };
     Ok(tree)
@@ -1204,14 +1207,14 @@ struct Setup<'a> {
 }
 
 /// Encode by `encode`, sort, and build the tree over the sorted codes, timing the phases.
-/// `keys` are the codes buffer and its sort scratch. `hint` is the scratch's record of its
+/// `keys` are the codes buffer, its sort scratch and a rebuild's set-aside list. `hint` is the scratch's record of its
 /// last sort and this build's (owner, triangles, code bits): when they agree (a rebuild of the
 /// same structure) the codes buffer still holds that sort's codes (`ids` their order), so the
 /// new codes go into the scratch and only those that changed are sorted
 /// (`sort_with_ids_hinted`); once sorted, the record is this build's.
 #[allow(clippy::too_many_arguments)]
 fn codes_to_tree<K: RadixKey, const W: usize>(
-    (codes, kbuf): (&mut Vec<K>, &mut Vec<K>),
+    (codes, kbuf, rest): (&mut Vec<K>, &mut Vec<K>, &mut Vec<(K, u32)>),
     (ids, vbuf, block, groups): (
         &mut Vec<u32>,
         &mut Vec<u32>,
@@ -1234,7 +1237,7 @@ fn codes_to_tree<K: RadixKey, const W: usize>(
     let t2 = Instant::now();
     times.encode = (t2 - setup.t1).as_secs_f64() * 1e3;
     if hinted {
-        crate::sort::sort_with_ids_hinted(codes, kbuf, ids, vbuf).map(|_| ())
+        crate::sort::sort_with_ids_hinted(codes, kbuf, ids, vbuf, rest).map(|_| ())
     } else {
         crate::sort::sort_with_ids(codes, ids, kbuf, vbuf).map(|_| ())
     }
