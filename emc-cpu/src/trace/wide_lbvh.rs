@@ -1207,10 +1207,10 @@ struct Setup<'a> {
 }
 
 /// Encode by `encode`, sort, and build the tree over the sorted codes, timing the phases.
-/// `keys` are the codes buffer, its sort scratch and a rebuild's set-aside list. `hint` is the scratch's record of its
-/// last sort and this build's (owner, triangles, code bits): when they agree (a rebuild of the
-/// same structure) the codes buffer still holds that sort's codes (`ids` their order), so the
-/// new codes go into the scratch and only those that changed are sorted
+/// `keys` are the codes buffer, its sort scratch and a rebuild's set-aside list. `hint` is the
+/// scratch's record of its last sort and this build's (owner, triangles, code bits): when they
+/// agree (a rebuild of the same structure) the codes buffer still holds that sort's codes (`ids`
+/// their order), so the new codes go into the scratch and only those that changed are sorted
 /// (`sort_with_ids_hinted`); once sorted, the record is this build's.
 #[allow(clippy::too_many_arguments)]
 fn codes_to_tree<K: RadixKey, const W: usize>(
