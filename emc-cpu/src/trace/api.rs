@@ -422,6 +422,11 @@ pub struct Accel {
 /// The next [`Accel`]'s token.
 static NEXT_TOKEN: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
 
+/// A token no other [`Accel`] of this process has had.
+fn fresh_token() -> u64 {
+    NEXT_TOKEN.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
+}
+
 impl Drop for Accel {
     fn drop(&mut self) {
         if let Some(spare) = self.spare.take() {
@@ -474,7 +479,7 @@ impl Accel {
             phases: FastTimes::default(),
             refit: None,
             spare: Some(Arc::clone(&ctx.spare)),
-            token: NEXT_TOKEN.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
+            token: fresh_token(),
         };
         build_over(
             a.token,
@@ -631,7 +636,7 @@ impl Accel {
             phases: FastTimes::default(),
             refit: None,
             spare: None,
-            token: NEXT_TOKEN.fetch_add(1, std::sync::atomic::Ordering::Relaxed),
+            token: fresh_token(),
         })
     }
 

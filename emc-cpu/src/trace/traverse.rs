@@ -1976,8 +1976,8 @@ pub(crate) fn closest_valid<const STATS: bool>(
 }
 
 /// The traversals of one 8-wide SIMD node test (`$lanes`, compiled with `$feat`): any hit
-/// over triangles, and closest and any hit over item boxes. Each makes the ray's constants itself, with
-/// the test's features and without the other kernels' registers in its frame.
+/// over triangles, and closest and any hit over item boxes. Each makes the ray's constants
+/// itself, with the test's features and without the other kernels' registers in its frame.
 #[cfg(target_arch = "x86_64")]
 macro_rules! simd_kernels {
     ($lanes:ty, $feat:literal, $what:literal, $occluded:ident, $citems:ident, $oitems:ident) => {
@@ -2120,13 +2120,14 @@ fn closest_in<const W: usize, const STATS: bool, L: Lanes<W> + PacketTest>(
 /// children makes the triangle test's constants (from `ray`) and walks on from there, so it
 /// visits what one walk would. Primary rays of an object seen from outside mostly enter none
 /// of the root's children: of the primary rays that miss the object, 82% on stanford-dragon
-/// (77% of its rays miss), 89% on pbrt-crown, 95% on sionna-san-francisco. Measured against every ray making all its constants
-/// first (the kernel before), quality trees, the two interleaved pass by pass in one process,
-/// medians of 9 passes on an AVX2 Zen 3: primary rays in 0.80x the time on stanford-dragon
-/// (the rays that miss it 0.55x, those that hit 1.01x), 0.83x on sionna-san-francisco, 0.57x
-/// on pbrt-crown, 0.98-0.99x on pbrt-bathroom (camera inside: every ray hits). Walking on
-/// to the first leaf without the constants saved the misses no more and cost the hits 5-15%:
-/// the constants' latency then stands between the first leaf and its test.
+/// (77% of its rays miss), 89% on pbrt-crown, 95% on sionna-san-francisco. Measured against
+/// every ray making all its constants first (the kernel before), quality trees, the two
+/// interleaved pass by pass in one process, medians of 9 passes on an AVX2 Zen 3: primary rays
+/// in 0.80x the time on stanford-dragon (the rays that miss it 0.55x, those that hit 1.01x),
+/// 0.83x on sionna-san-francisco, 0.57x on pbrt-crown, 0.98-0.99x on pbrt-bathroom (camera
+/// inside: every ray hits). Walking on to the first leaf without the constants saved the
+/// misses no more and cost the hits 5-15%: the constants' latency then stands between the
+/// first leaf and its test.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn closest_wide<const STATS: bool, T: WideRay>(
@@ -2477,10 +2478,10 @@ fn occluded_wide<const STATS: bool, T: WideRay>(
 
 /// [`occluded_wide`] for a ray entering an instance of a lone mesh, which often enters none of
 /// the root's children though it entered the instance's box (a rotated object's box is
-/// loose): the ray comes with its box
-/// constants alone ([`PreRay::boxes`]), and only one that enters a child of the root makes the
-/// triangle test's (from `ray`) and walks on. Stanford-dragon × 1000 (`emc compare
-/// --instances 1000`, two runs each way): AO 0.76-0.77x → 0.81x the best peer's speed.
+/// loose): the ray comes with its box constants alone ([`PreRay::boxes`]), and only one that
+/// enters a child of the root makes the triangle test's (from `ray`) and walks on.
+/// Stanford-dragon × 1000 (`emc compare --instances 1000`, two runs each way): AO 0.76-0.77x →
+/// 0.81x the best peer's speed.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn occluded_entry<const STATS: bool, T: WideRay>(
@@ -2491,7 +2492,7 @@ fn occluded_entry<const STATS: bool, T: WideRay>(
     stats: &mut TraceStats,
 ) -> bool {
     let cull = slack(r.tfar, abs_slack(bvh, r));
-    let root = occluded_root::<STATS, T>(bvh, r, lanes, stats, cull);
+    let root = occluded_step::<STATS, T>(&bvh.nodes8[0], r, lanes, stats, cull);
     if root[1] == 0 {
         return false;
     }
@@ -2642,22 +2643,8 @@ fn occluded_walk_compact<const STATS: bool, T: WideRay>(
     leaf: &mut impl LeafVisit<bool>,
 ) -> bool {
     let cull = slack(r.tfar, abs_slack(bvh, r));
-    let root = occluded_root::<STATS, T>(bvh, r, lanes, stats, cull);
+    let root = occluded_step::<STATS, T>(&bvh.nodes8[0], r, lanes, stats, cull);
     occluded_walk_compact_from::<STATS, T>(bvh, r, lanes, stats, leaf, cull, root)
-}
-
-/// The first step of [`occluded_walk_compact`]: the root's leaf flags and entered lanes
-/// (node 0 is the root, an inner node: a leaf root is a child of it).
-#[cfg(target_arch = "x86_64")]
-#[inline(always)]
-fn occluded_root<const STATS: bool, T: WideRay>(
-    bvh: &WideBvh,
-    r: &PreRay,
-    lanes: &WideLanes<T>,
-    stats: &mut TraceStats,
-    cull: f32,
-) -> [u32; 2] {
-    occluded_step::<STATS, T>(&bvh.nodes8[0], r, lanes, stats, cull)
 }
 
 /// One node of the any-hit walk: the test counted, then the node's leaf flags and entered
@@ -2680,7 +2667,8 @@ fn occluded_step<const STATS: bool, T: WideRay>(
     [lm, mask]
 }
 
-/// [`occluded_walk_compact`] after its first step ([`occluded_root`]), culling at `cull`.
+/// [`occluded_walk_compact`] after its first step (the root, node 0, an inner node: a leaf
+/// root is a child of it), culling at `cull`.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
 fn occluded_walk_compact_from<const STATS: bool, T: WideRay>(

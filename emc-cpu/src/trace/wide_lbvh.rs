@@ -280,9 +280,9 @@ macro_rules! block_builders {
                 s.tris.resize(BLOCK as usize, [Vec3A::ZERO; 3]);
             }
             let ids = &inp.ids[b as usize..e as usize];
-            // The gather is the one scattered read of the build: the triangle `GATHER_AHEAD` positions
-            // on has its index fetched, and the one half as far on its corners (their indices are in
-            // cache by then), so the misses overlap instead of stalling each load.
+            // The gather is the one scattered read of the build: the triangle `GATHER_AHEAD`
+            // positions on has its index fetched, and the one half as far on its corners (their
+            // indices are in cache by then), so the misses overlap instead of stalling each load.
             let all = inp.ids;
             for (k, (t, &id)) in s.tris[..m].iter_mut().zip(ids).enumerate() {
                 let p = b as usize + k;
@@ -296,8 +296,9 @@ macro_rules! block_builders {
                 }
                 *t = inp.indices[id as usize].map(|i| Vec3A::from(inp.vertices[i as usize]));
             }
-            // The sweep: left to right, every primitive a leaf node; an open subtree on the stack is
-            // merged with the current one while its right boundary's level is below the current one's.
+            // The sweep: left to right, every primitive a leaf node; an open subtree on the stack
+            // is merged with the current one while its right boundary's level is below the
+            // current one's.
             s.stack.clear();
             let mut next = 0usize;
             for p in 0..m {
@@ -372,9 +373,9 @@ macro_rules! block_builders {
         }
 
         /// Write the wide node made of the block's inner binary node `bn` and its subtree: its
-        /// children come from opening the largest inner child until there are `W` (an inner child
-        /// left over would cost a wide node of its own), then, with lanes to spare, the leaves whose
-        /// two halves cost least against them. Returns its code (node index), SAH cost and height.
+        /// children come from opening the largest inner child until there are `W` (an inner
+        /// child left over would cost a wide node of its own), then, with lanes to spare, the
+        /// leaves whose two halves cost least against them. Returns its code (node index), SAH cost and height.
         /// The node takes slot `*next` of `out.nodes` (its spare capacity: the caller reserved
         /// room and sets the length once the block is written), its subtree the slots after.
         $(#[$isa])*
