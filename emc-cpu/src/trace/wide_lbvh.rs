@@ -375,9 +375,10 @@ macro_rules! block_builders {
         /// Write the wide node made of the block's inner binary node `bn` and its subtree: its
         /// children come from opening the largest inner child until there are `W` (an inner
         /// child left over would cost a wide node of its own), then, with lanes to spare, the
-        /// leaves whose two halves cost least against them. Returns its code (node index), SAH cost and height.
-        /// The node takes slot `*next` of `out.nodes` (its spare capacity: the caller reserved
-        /// room and sets the length once the block is written), its subtree the slots after.
+        /// leaves whose two halves cost least against them. Returns its code (node index), SAH
+        /// cost and height. The node takes slot `*next` of `out.nodes` (its spare capacity: the
+        /// caller reserved room and sets the length once the block is written), its subtree the
+        /// slots after.
         $(#[$isa])*
                 fn $emit_wide<K: RadixKey, const W: usize>(
             inp: &Inputs<'_, K>,
