@@ -180,6 +180,25 @@ fn hw_golden_vectors_equal_the_model_and_emc_core() {
     }
 }
 
+/// The static and dynamic libraries of the emc-hwsim this test links (crate types staticlib and
+/// cdylib): a test build that selects emc-hwsim (`--workspace`, `-p emc-hwsim`) writes them
+/// beside its rlib in `deps/` in the same compiler run, `cargo build -p emc-hwsim` into the
+/// directory above. A pair older than the rlib is a leftover of an earlier build and is not
+/// taken.
+fn c_libraries() -> Option<(PathBuf, PathBuf)> {
+    let exe = std::env::current_exe().ok()?;
+    let deps = exe.parent()?.to_path_buf();
+    let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
+    // Written by the same compiler run as the rlib: not more than a minute apart.
+    let rlib = modified(&deps.join("libemc_hwsim.rlib"))?;
+    let fresh =
+        |p: &Path| modified(p).is_some_and(|t| t + std::time::Duration::from_secs(60) >= rlib);
+    [deps.clone(), deps.parent()?.to_path_buf()]
+        .into_iter()
+        .map(|d| (d.join("libemc_hwsim.a"), d.join("libemc_hwsim.so")))
+        .find(|(a, so)| fresh(a) && fresh(so))
+}
+
 #[test]
 fn hw_c_program_reproduces_the_golden_vectors() {
     if Command::new("gcc").arg("--version").output().is_err() {
@@ -189,23 +208,19 @@ fn hw_c_program_reproduces_the_golden_vectors() {
         eprintln!("skipping: gcc is not installed");
         return;
     }
-    // The libraries cargo built beside this test's dependencies (crate-type staticlib, cdylib).
-    let exe = std::env::current_exe().unwrap();
-    let libdir = exe.parent().unwrap().parent().unwrap().to_path_buf();
-    let a = libdir.join("libemc_hwsim.a");
-    let so = libdir.join("libemc_hwsim.so");
-    if !(a.is_file() && so.is_file()) {
-        let msg = format!(
-            "no libemc_hwsim.a/.so in {} (a test build makes the rlib only; build them first: \
-             cargo build --release -p emc-hwsim)",
-            libdir.display()
-        );
+    let Some((a, so)) = c_libraries() else {
+        let msg = "no libemc_hwsim.a/.so as new as the emc-hwsim this test links (a test build \
+                   that does not select emc-hwsim makes its rlib only: run the suite with \
+                   --workspace or -p emc-hwsim, or build them first with \
+                   cargo build --release -p emc-hwsim)";
         if std::env::var("EMC_REQUIRE_HW_TOOLS").is_ok_and(|v| v == "1") {
             panic!("{msg}; EMC_REQUIRE_HW_TOOLS=1 makes this a failure");
         }
         eprintln!("skipping: {msg}");
         return;
-    }
+    };
+    let libdir = so.parent().unwrap();
+    eprintln!("linking {} and {}", a.display(), so.display());
     let work = Path::new(env!("CARGO_TARGET_TMPDIR")).join("ffi");
     std::fs::create_dir_all(&work).unwrap();
     // The scene in the vectors format (codes and cycles unused by the reader's scene role).
