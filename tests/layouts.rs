@@ -580,3 +580,51 @@ fn dispatch_follows_the_cpu_rules() {
         );
     }
 }
+
+/// The batch calls equal the code-by-code ones on every backend this CPU has and every layout
+/// (random codes over the whole word, bits above the layout included, and random channel
+/// values over the whole word, bits above each channel included); a buffer of another length
+/// is refused.
+#[test]
+fn batch_decode_and_expand_equal_one_code_at_a_time() {
+    let frame = Frame::new(&[pt([0.0; 3]), pt([4.0, 2.0, 1.0])]).unwrap();
+    let mut rng = Rng(0x0ddb_a11c_0de5);
+    let codes: Vec<u64> = (0..1000).map(|_| rng.next()).collect();
+    let q: Vec<[u64; 4]> = (0..1000)
+        .map(|_| [rng.next(), rng.next(), rng.next(), rng.next()])
+        .collect();
+    let mut tried = 0;
+    for (_, l) in emc_tests::all_layouts() {
+        for b in Backend::ALL {
+            let Ok(enc) = Encoder::with_backend(l, &frame, b) else {
+                continue;
+            };
+            tried += 1;
+            let mut dq = vec![[0u64; 4]; codes.len()];
+            enc.decode_batch(&codes, &mut dq).unwrap();
+            let mut ex = vec![0u64; q.len()];
+            enc.expand_batch(&q, &mut ex).unwrap();
+            for i in 0..codes.len() {
+                assert_eq!(
+                    dq[i],
+                    enc.decode(codes[i]),
+                    "{l} {b}: decode of {:#x}",
+                    codes[i]
+                );
+                assert_eq!(ex[i], enc.expand(q[i]), "{l} {b}: expand of {:?}", q[i]);
+            }
+            assert_eq!(
+                enc.decode_batch(&codes, &mut dq[..999]),
+                Err(Error::LengthMismatch(1000, 999))
+            );
+            assert_eq!(
+                enc.expand_batch(&q[..3], &mut ex),
+                Err(Error::LengthMismatch(3, 1000))
+            );
+        }
+    }
+    assert!(
+        tried >= 2 * emc_tests::all_layouts().len(),
+        "{tried} encoders"
+    );
+}

@@ -307,6 +307,26 @@ impl Encoder {
         self.expander.compact(code)
     }
 
+    /// [`Encoder::decode`] of a slice of codes into the caller's buffer (same length), the
+    /// backend's loop run once for the slice.
+    pub fn decode_batch(&self, codes: &[u64], out: &mut [[u64; 4]]) -> Result<(), Error> {
+        if codes.len() != out.len() {
+            return Err(Error::LengthMismatch(codes.len(), out.len()));
+        }
+        self.expander.compact_slice(codes, out);
+        Ok(())
+    }
+
+    /// [`Encoder::expand`] of a slice of channel values into the caller's buffer (same
+    /// length), the backend's loop run once for the slice.
+    pub fn expand_batch(&self, q: &[[u64; 4]], out: &mut [u64]) -> Result<(), Error> {
+        if q.len() != out.len() {
+            return Err(Error::LengthMismatch(q.len(), out.len()));
+        }
+        self.expander.expand_slice(q, out);
+        Ok(())
+    }
+
     /// Encode a slice of boxes into the caller's buffer (same length) with the dispatched
     /// pipeline ([`Encoder::pipeline`]). Bit-identical to [`Encoder::encode`] on every box.
     pub fn encode_batch(&self, boxes: &[Aabb], out: &mut [u64]) -> Result<(), Error> {

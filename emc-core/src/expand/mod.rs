@@ -146,4 +146,39 @@ impl Expander {
             Expander::Pdep(e) => e.compact(code),
         }
     }
+
+    /// [`Expander::expand`] of every element of `q` into `out` (pairs up to the shorter of
+    /// the two): the backend is chosen once for the slice and its loop runs inside it (for
+    /// `pdep`, inside the BMI2 function, where the instructions inline).
+    pub fn expand_slice(&self, q: &[[u64; 4]], out: &mut [u64]) {
+        fn each(q: &[[u64; 4]], out: &mut [u64], f: impl Fn([u64; 4]) -> u64) {
+            for (o, v) in out.iter_mut().zip(q) {
+                *o = f(*v);
+            }
+        }
+        match self {
+            Expander::Reference(e) => each(q, out, |v| e.expand(v)),
+            Expander::Magic(e) => each(q, out, |v| e.expand(v)),
+            Expander::Table(e) => each(q, out, |v| e.expand(v)),
+            #[cfg(target_arch = "x86_64")]
+            Expander::Pdep(e) => e.expand_slice(q, out),
+        }
+    }
+
+    /// [`Expander::compact`] of every code of `codes` into `out` (pairs up to the shorter of
+    /// the two), the backend chosen once for the slice as in [`Expander::expand_slice`].
+    pub fn compact_slice(&self, codes: &[u64], out: &mut [[u64; 4]]) {
+        fn each(codes: &[u64], out: &mut [[u64; 4]], f: impl Fn(u64) -> [u64; 4]) {
+            for (o, &c) in out.iter_mut().zip(codes) {
+                *o = f(c);
+            }
+        }
+        match self {
+            Expander::Reference(e) => each(codes, out, |c| e.compact(c)),
+            Expander::Magic(e) => each(codes, out, |c| e.compact(c)),
+            Expander::Table(e) => each(codes, out, |c| e.compact(c)),
+            #[cfg(target_arch = "x86_64")]
+            Expander::Pdep(e) => e.compact_slice(codes, out),
+        }
+    }
 }

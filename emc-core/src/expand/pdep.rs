@@ -51,6 +51,12 @@ impl Pdep {
         // SAFETY: as in `expand`.
         unsafe { expand_slice_bmi2(&self.masks, q, out) }
     }
+
+    /// Split a batch of codes (the hot loop stays inside the BMI2 function).
+    pub fn compact_slice(&self, codes: &[u64], out: &mut [[u64; 4]]) {
+        // SAFETY: as in `expand`.
+        unsafe { compact_slice_bmi2(&self.masks, codes, out) }
+    }
 }
 
 /// # Safety
@@ -83,5 +89,19 @@ unsafe fn expand_slice_bmi2(m: &[u64; 4], q: &[[u64; 4]], out: &mut [u64]) {
             | _pdep_u64(v[1], m[1])
             | _pdep_u64(v[2], m[2])
             | _pdep_u64(v[3], m[3]);
+    }
+}
+
+/// # Safety
+/// The CPU must support BMI2.
+#[target_feature(enable = "bmi2")]
+unsafe fn compact_slice_bmi2(m: &[u64; 4], codes: &[u64], out: &mut [[u64; 4]]) {
+    for (o, &c) in out.iter_mut().zip(codes) {
+        *o = [
+            _pext_u64(c, m[0]),
+            _pext_u64(c, m[1]),
+            _pext_u64(c, m[2]),
+            _pext_u64(c, m[3]),
+        ];
     }
 }
