@@ -4,12 +4,13 @@
 //! analytic brute force with the callback counted, refit of a mesh in a scene, tracing from
 //! many threads, and the errors of bad edits.
 
+use std::collections::HashMap;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::Arc;
 
 use emc_core::Aabb;
 use emc_cpu::scene::{builtin, SceneOptions};
-use emc_cpu::trace::traverse::brute_force_packets;
+use emc_cpu::trace::traverse::brute_force_packets_many;
 use emc_cpu::trace::wide::TriPacket;
 use emc_cpu::trace::{BuildOptions, CustomHit, Hit, Preset, Ray, Scene, TraceError};
 use glam::{Affine3A, Quat, Vec3};
@@ -192,20 +193,40 @@ fn grazes(r: &Ray, tri: &[Vec3; 3]) -> bool {
 fn check(scene: &Scene, flat: &[Flat], rays: &[Ray], label: &str) -> usize {
     let hits = scene.intersect_batch(rays);
     let occ = scene.occluded_batch(rays);
-    let index: std::collections::HashMap<(u32, u32, u32), usize> = flat
+    let index: HashMap<(u32, u32, u32), usize> = flat
         .iter()
         .enumerate()
         .map(|(k, f)| ((f.instance, f.geom, f.prim), k))
         .collect();
-    let grazing = AtomicU64::new(0);
-    rays.par_iter().enumerate().for_each(|(i, r)| {
-        // Brute force over the triangles this ray's mask sees, by the packet test.
+    // Brute force over the triangles each ray's mask sees, by the packet test: per mask, its
+    // triangles and their packets, and the rays that carry it traced together.
+    let mut by_mask: HashMap<u32, Vec<usize>> = HashMap::new();
+    for (i, r) in rays.iter().enumerate() {
+        by_mask.entry(r.mask).or_default().push(i);
+    }
+    let mut seen_of: HashMap<u32, Vec<&Flat>> = HashMap::new();
+    let mut bfs: Vec<Option<Hit>> = vec![None; rays.len()];
+    for (&mask, which) in &by_mask {
         let seen: Vec<&Flat> = flat
             .iter()
-            .filter(|f| f.masks.0 & r.mask != 0 && f.masks.1 & r.mask != 0)
+            .filter(|f| f.masks.0 & mask != 0 && f.masks.1 & mask != 0)
             .collect();
         let tris: Vec<[Vec3; 3]> = seen.iter().map(|f| f.tri).collect();
-        let bf = brute_force_packets(r, &TriPacket::of_triangles(&tris));
+        let packets = TriPacket::of_triangles(&tris);
+        let mine: Vec<Ray> = which.iter().map(|&i| rays[i]).collect();
+        let got: Vec<Option<Hit>> = mine
+            .par_chunks(256)
+            .flat_map_iter(|c| brute_force_packets_many(c, &packets))
+            .collect();
+        for (&i, h) in which.iter().zip(got) {
+            bfs[i] = h;
+        }
+        seen_of.insert(mask, seen);
+    }
+    let grazing = AtomicU64::new(0);
+    rays.par_iter().enumerate().for_each(|(i, r)| {
+        let seen = &seen_of[&r.mask];
+        let bf = bfs[i];
         let got = hits[i];
         let mine = got.map(|h| {
             let k = *index

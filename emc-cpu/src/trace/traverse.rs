@@ -2364,6 +2364,64 @@ pub fn brute_force_packets(ray: &Ray, packets: &[TriPacket]) -> Option<Hit> {
     brute_force_in(&r, packets, &ScalarLanes)
 }
 
+/// [`brute_force_packets`] of every ray in `rays`, equal to it ray by ray (each ray meets the
+/// packets in the same order with the same tests), in far less time over large meshes: the
+/// packets are read in tiles that stay in the cache while a group of rays is tested against
+/// each, so they stream from memory once per group instead of once per ray (over a million
+/// triangles the packets are 40 MB, and one ray's pass is bound by memory bandwidth).
+pub fn brute_force_packets_many(rays: &[Ray], packets: &[TriPacket]) -> Vec<Option<Hit>> {
+    /// Packets per tile: 176 bytes each, 88 KiB in all (within a core's L2).
+    const TILE: usize = 512;
+    /// Rays tested against a tile before the next tile.
+    const GROUP: usize = 64;
+    let mut out = Vec::with_capacity(rays.len());
+    for group in rays.chunks(GROUP) {
+        let pre: Vec<Option<PreRay>> = group
+            .iter()
+            .map(|r| r.is_valid().then(|| PreRay::new(r)))
+            .collect();
+        #[cfg(target_arch = "x86_64")]
+        let lanes: Vec<Option<SseLanes>> = pre
+            .iter()
+            .map(|r| r.as_ref().map(|r| SseLanes(sse::SseRay::new(r))))
+            .collect();
+        #[cfg(not(target_arch = "x86_64"))]
+        let lanes: Vec<Option<ScalarLanes>> = pre
+            .iter()
+            .map(|r| r.as_ref().map(|_| ScalarLanes))
+            .collect();
+        let mut best: Vec<(Best, bool)> = pre
+            .iter()
+            .map(|r| {
+                let t = r.as_ref().map_or(0.0, |r| r.tfar);
+                let b = Best {
+                    t,
+                    prim: u32::MAX,
+                    u: 0.0,
+                    v: 0.0,
+                };
+                (b, false)
+            })
+            .collect();
+        for tile in packets.chunks(TILE) {
+            for ((r, l), (b, found)) in pre.iter().zip(&lanes).zip(&mut best) {
+                let (Some(r), Some(l)) = (r, l) else {
+                    continue;
+                };
+                for p in tile {
+                    let tmax = b.t;
+                    l.packet(r, p, tmax, |t, u, v, prim| offer(b, found, t, u, v, prim));
+                }
+            }
+        }
+        out.extend(
+            best.iter()
+                .map(|(b, found)| found.then_some(Hit::triangle(b.t, b.prim, b.u, b.v))),
+        );
+    }
+    out
+}
+
 /// [`brute_force_packets`] with one tester.
 fn brute_force_in<L: PacketTest>(r: &PreRay, packets: &[TriPacket], lanes: &L) -> Option<Hit> {
     let mut best = Best {
