@@ -15,6 +15,7 @@ use emc_cpu::scene::{builtin, load_with, SceneOptions};
 use emc_hwsim::rtl::{emit, RtlFiles};
 use emc_hwsim::{RoutingChoice, SizeSearch, Unit, UnitOptions};
 use emc_tests::hard_scenes;
+use rayon::prelude::*;
 
 /// Whether `tool` runs; skips (false) or fails under `EMC_REQUIRE_HW_TOOLS=1` when it does not.
 fn have(tool: &str, version_arg: &str) -> bool {
@@ -823,37 +824,55 @@ fn hw_every_single_wire_swap_is_caught() {
     let mut caught = 0;
     let pyth = &frames_and_boxes()[5].0;
     assert_eq!(pyth.diagonal(), 13.0, "the exact-diagonal frame");
+    // Every run (each pick's clean unit and its mutants) simulated side by side, each in its
+    // own directory, then judged in order.
+    let mut jobs = Vec::new();
     for (name, n, seed) in picks {
         let (_, spec, opts) = configs().into_iter().find(|c| c.0 == name).unwrap();
-        let sets = frames_of(&spec, &opts);
+        let sets = std::sync::Arc::new(frames_of(&spec, &opts));
         let files = sets[0].files.clone();
-        // The unmutated unit passes on every frame.
-        let dir = scratch(&format!("clean-{name}"));
-        let out = icarus_sets(&dir, &files, &sets).unwrap();
-        assert_eq!(out.matches("PASS").count(), sets.len(), "{name}: {out}");
         let n = survey.unwrap_or(n);
         let mutants = wire_swaps(&files.verilog, n, seed);
         assert_eq!(mutants.len(), n);
+        jobs.push((name, None, files.clone(), sets.clone()));
         for (k, (what, text)) in mutants.into_iter().enumerate() {
-            let dir = scratch(&format!("mutant-{name}-{k}"));
             let m = RtlFiles {
                 verilog: text,
                 ..files.clone()
             };
-            let out = icarus_sets(&dir, &m, &sets).unwrap_or_else(|e| e);
-            if survey.is_some() {
-                if out.matches("PASS").count() == sets.len() {
-                    survivors.push(format!("{name}: {what}"));
-                }
-                continue;
-            }
-            assert!(
-                out.matches("PASS").count() < sets.len(),
-                "{name} mutant {what} survived the testbench: {out}"
-            );
-            caught += 1;
-            eprintln!("{name}: caught {what}");
+            jobs.push((name, Some((k, what)), m, sets.clone()));
         }
+    }
+    let outs: Vec<Result<String, String>> = jobs
+        .par_iter()
+        .map(|(name, mutant, files, sets)| {
+            let dir = match mutant {
+                None => scratch(&format!("clean-{name}")),
+                Some((k, _)) => scratch(&format!("mutant-{name}-{k}")),
+            };
+            icarus_sets(&dir, files, sets)
+        })
+        .collect();
+    for ((name, mutant, _, sets), out) in jobs.iter().zip(outs) {
+        let Some((_, what)) = mutant else {
+            // The unmutated unit passes on every frame.
+            let out = out.unwrap();
+            assert_eq!(out.matches("PASS").count(), sets.len(), "{name}: {out}");
+            continue;
+        };
+        let out = out.unwrap_or_else(|e| e);
+        if survey.is_some() {
+            if out.matches("PASS").count() == sets.len() {
+                survivors.push(format!("{name}: {what}"));
+            }
+            continue;
+        }
+        assert!(
+            out.matches("PASS").count() < sets.len(),
+            "{name} mutant {what} survived the testbench: {out}"
+        );
+        caught += 1;
+        eprintln!("{name}: caught {what}");
     }
     if survey.is_some() {
         eprintln!("{} survivors:\n{}", survivors.len(), survivors.join("\n"));

@@ -17,7 +17,7 @@ use crate::cost::{area_at, delay_at, NS_PER_LEVEL, UM2_PER_T};
 use crate::datapath::Unit;
 use crate::error::HwError;
 use crate::rtl::net::Price;
-use crate::rtl::{blocks, emit, write_unit};
+use crate::rtl::{blocks, emit, write_unit, BlockSource};
 
 /// Default location of the OSU 0.18 µm liberty file in Debian's `qflow-tech-osu018`.
 pub const OSU018_LIB: &str = "/usr/share/qflow/tech/osu018/osu018_stdcells.lib";
@@ -179,6 +179,35 @@ pub fn gates(verilog: &str, top: &str, o: &SynthOptions) -> Result<Gates, HwErro
     parse(&log, &rep, &dir)
 }
 
+/// [`gates`] of every block, in order, on as many threads as the machine has cores (at most
+/// one per block).
+fn gates_parallel(blocks: &[BlockSource], o: &SynthOptions) -> Vec<Result<Gates, HwError>> {
+    use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::Mutex;
+    let threads = std::thread::available_parallelism()
+        .map_or(1, |n| n.get())
+        .min(blocks.len())
+        .max(1);
+    let next = AtomicUsize::new(0);
+    let out: Mutex<Vec<Option<Result<Gates, HwError>>>> =
+        Mutex::new((0..blocks.len()).map(|_| None).collect());
+    std::thread::scope(|s| {
+        for _ in 0..threads {
+            s.spawn(|| loop {
+                let i = next.fetch_add(1, Ordering::Relaxed);
+                let Some(b) = blocks.get(i) else { break };
+                let g = gates(&b.verilog, &b.module, o);
+                out.lock().unwrap_or_else(|e| e.into_inner())[i] = Some(g);
+            });
+        }
+    });
+    out.into_inner()
+        .unwrap_or_else(|e| e.into_inner())
+        .into_iter()
+        .map(|g| g.expect("every block taken by a thread"))
+        .collect()
+}
+
 /// OpenSTA's script: the worst register-to-register, input-to-register or input-to-output
 /// path with [`DRIVER`] on the inputs and [`LOAD_PF`] on the outputs.
 const STA_SCRIPT: &str = "read_liberty {lib}
@@ -247,9 +276,13 @@ pub const AREA_CALIBRATION: &str = "emc_fp64_add";
 pub const DELAY_CALIBRATION: &str = "emc_fp64_add";
 /// Synthesise every block of `unit` and the whole unit.
 pub fn synthesize(unit: &Unit, o: &SynthOptions) -> Result<SynthReport, HwError> {
+    let blocks = blocks(unit);
+    // The blocks are synthesised side by side, one tool run per core (each in its own
+    // directory; yosys and OpenSTA are single-threaded).
+    let mut synthesised = gates_parallel(&blocks, o).into_iter();
     let mut rows = Vec::new();
-    for b in blocks(unit) {
-        let g = gates(&b.verilog, &b.module, o)?;
+    for b in blocks {
+        let g = synthesised.next().expect("one result per block")?;
         let (a, d) = model_40nm(&b.price);
         rows.push(Row {
             model_um2_40: Some(a),
