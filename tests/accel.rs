@@ -95,7 +95,22 @@ fn tiled_brute_force_equals_one_ray_at_a_time() {
         "{} packets: several tiles",
         packets.len()
     );
+    assert!(!packets.len().is_multiple_of(512), "a last partial tile");
     let mut rays = rays_for(&tris, 1000, 29);
+    // Segments: rays that hit, cut to end before their hit or to start after it.
+    let mut cut = 0;
+    for i in 0..400 {
+        let r = rays[i];
+        if let Some(h) = emc_cpu::trace::traverse::brute_force_packets(&r, &packets) {
+            let mut short = r;
+            (short.tnear, short.tfar) = (h.t * 0.25, h.t * 0.5);
+            let mut beyond = r;
+            beyond.tnear = h.t * 1.001;
+            rays.extend([short, beyond]);
+            cut += 1;
+        }
+    }
+    assert!(cut > 50, "{cut} segments");
     rays.push(Ray::new(Vec3::ZERO, Vec3::ZERO));
     rays.push(Ray::new(Vec3::NAN, Vec3::X));
     let mut back = rays[0];
@@ -114,6 +129,10 @@ fn tiled_brute_force_equals_one_ray_at_a_time() {
         hits += m.is_some() as usize;
     }
     assert!(hits > 300, "{hits} of {} rays hit", rays.len());
+    // Some segments miss what their whole ray hits (the interval is honoured).
+    let n = rays.len();
+    let segment_misses = many[1000..n - 4].iter().filter(|h| h.is_none()).count();
+    assert!(segment_misses > 20, "{segment_misses} segments miss");
     assert!(many[rays.len() - 4..rays.len() - 1]
         .iter()
         .all(Option::is_none));

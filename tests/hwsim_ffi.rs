@@ -181,22 +181,24 @@ fn hw_golden_vectors_equal_the_model_and_emc_core() {
 }
 
 /// The static and dynamic libraries of the emc-hwsim this test links (crate types staticlib and
-/// cdylib): a test build that selects emc-hwsim (`--workspace`, `-p emc-hwsim`) writes them
-/// beside its rlib in `deps/` in the same compiler run, `cargo build -p emc-hwsim` into the
-/// directory above. A pair older than the rlib is a leftover of an earlier build and is not
-/// taken.
+/// cdylib): every build of emc-hwsim writes them beside its rlib in `deps/` in the same
+/// compiler run (a package with a cdylib has no hash in its file names, so a later build
+/// with other features writes over all three). Taken only when they were written with the
+/// rlib (not more than a minute apart) and before this test was linked.
 fn c_libraries() -> Option<(PathBuf, PathBuf)> {
+    use std::time::Duration;
     let exe = std::env::current_exe().ok()?;
     let deps = exe.parent()?.to_path_buf();
     let modified = |p: &Path| std::fs::metadata(p).and_then(|m| m.modified()).ok();
-    // Written by the same compiler run as the rlib: not more than a minute apart.
     let rlib = modified(&deps.join("libemc_hwsim.rlib"))?;
-    let fresh =
-        |p: &Path| modified(p).is_some_and(|t| t + std::time::Duration::from_secs(60) >= rlib);
-    [deps.clone(), deps.parent()?.to_path_buf()]
-        .into_iter()
-        .map(|d| (d.join("libemc_hwsim.a"), d.join("libemc_hwsim.so")))
-        .find(|(a, so)| fresh(a) && fresh(so))
+    let linked = modified(&exe)?;
+    let fresh = |p: &Path| {
+        modified(p).is_some_and(|t| {
+            t + Duration::from_secs(60) >= rlib && t <= linked + Duration::from_secs(5)
+        })
+    };
+    let (a, so) = (deps.join("libemc_hwsim.a"), deps.join("libemc_hwsim.so"));
+    (fresh(&a) && fresh(&so)).then_some((a, so))
 }
 
 #[test]
@@ -209,10 +211,9 @@ fn hw_c_program_reproduces_the_golden_vectors() {
         return;
     }
     let Some((a, so)) = c_libraries() else {
-        let msg = "no libemc_hwsim.a/.so as new as the emc-hwsim this test links (a test build \
-                   that does not select emc-hwsim makes its rlib only: run the suite with \
-                   --workspace or -p emc-hwsim, or build them first with \
-                   cargo build --release -p emc-hwsim)";
+        let msg = "no libemc_hwsim.a/.so beside the emc-hwsim rlib this test links, written with \
+                   it (a later build of emc-hwsim with other features replaced them: build \
+                   this suite again)";
         if std::env::var("EMC_REQUIRE_HW_TOOLS").is_ok_and(|v| v == "1") {
             panic!("{msg}; EMC_REQUIRE_HW_TOOLS=1 makes this a failure");
         }

@@ -42,13 +42,7 @@ pub fn expand_slice(exp: &Expander, q: &[[u64; 4]], out: &mut [u64]) -> Result<(
     if q.len() != out.len() {
         return Err(Error::LengthMismatch(q.len(), out.len()));
     }
-    match exp {
-        Expander::Reference(e) => out.iter_mut().zip(q).for_each(|(o, v)| *o = e.expand(*v)),
-        Expander::Magic(e) => out.iter_mut().zip(q).for_each(|(o, v)| *o = e.expand(*v)),
-        Expander::Table(e) => out.iter_mut().zip(q).for_each(|(o, v)| *o = e.expand(*v)),
-        #[cfg(target_arch = "x86_64")]
-        Expander::Pdep(e) => e.expand_slice(q, out),
-    }
+    exp.expand_slice(q, out);
     Ok(())
 }
 

@@ -180,7 +180,8 @@ pub fn gates(verilog: &str, top: &str, o: &SynthOptions) -> Result<Gates, HwErro
 }
 
 /// [`gates`] of every block, in order, on as many threads as the machine has cores (at most
-/// one per block).
+/// one per block). Every block runs even when one fails; the caller returns the first
+/// failure in block order.
 fn gates_parallel(blocks: &[BlockSource], o: &SynthOptions) -> Vec<Result<Gates, HwError>> {
     use std::sync::atomic::{AtomicUsize, Ordering};
     use std::sync::Mutex;

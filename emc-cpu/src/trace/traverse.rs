@@ -2368,7 +2368,7 @@ pub fn brute_force_packets(ray: &Ray, packets: &[TriPacket]) -> Option<Hit> {
 /// packets in the same order with the same tests), in far less time over large meshes: the
 /// packets are read in tiles that stay in the cache while a group of rays is tested against
 /// each, so they stream from memory once per group instead of once per ray (over a million
-/// triangles the packets are 40 MB, and one ray's pass is bound by memory bandwidth).
+/// triangles the packets are 44 MB, and one ray's pass is bound by memory bandwidth).
 pub fn brute_force_packets_many(rays: &[Ray], packets: &[TriPacket]) -> Vec<Option<Hit>> {
     /// Packets per tile: 176 bytes each, 88 KiB in all (within a core's L2).
     const TILE: usize = 512;
