@@ -151,11 +151,6 @@ impl Expander {
     /// the two): the backend is chosen once for the slice and its loop runs inside it (for
     /// `pdep`, inside the BMI2 function, where the instructions inline).
     pub fn expand_slice(&self, q: &[[u64; 4]], out: &mut [u64]) {
-        fn each(q: &[[u64; 4]], out: &mut [u64], f: impl Fn([u64; 4]) -> u64) {
-            for (o, v) in out.iter_mut().zip(q) {
-                *o = f(*v);
-            }
-        }
         match self {
             Expander::Reference(e) => each(q, out, |v| e.expand(v)),
             Expander::Magic(e) => each(q, out, |v| e.expand(v)),
@@ -168,11 +163,6 @@ impl Expander {
     /// [`Expander::compact`] of every code of `codes` into `out` (pairs up to the shorter of
     /// the two), the backend chosen once for the slice as in [`Expander::expand_slice`].
     pub fn compact_slice(&self, codes: &[u64], out: &mut [[u64; 4]]) {
-        fn each(codes: &[u64], out: &mut [[u64; 4]], f: impl Fn(u64) -> [u64; 4]) {
-            for (o, &c) in out.iter_mut().zip(codes) {
-                *o = f(c);
-            }
-        }
         match self {
             Expander::Reference(e) => each(codes, out, |c| e.compact(c)),
             Expander::Magic(e) => each(codes, out, |c| e.compact(c)),
@@ -180,5 +170,14 @@ impl Expander {
             #[cfg(target_arch = "x86_64")]
             Expander::Pdep(e) => e.compact_slice(codes, out),
         }
+    }
+}
+
+/// `out[i] = f(src[i])` for each pair of elements (up to the shorter slice): the per-element
+/// loop of the slice methods of the portable backends.
+#[inline]
+fn each<A: Copy, B>(src: &[A], out: &mut [B], f: impl Fn(A) -> B) {
+    for (o, &a) in out.iter_mut().zip(src) {
+        *o = f(a);
     }
 }
