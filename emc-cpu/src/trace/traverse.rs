@@ -1807,6 +1807,23 @@ pub(crate) fn prefetch<T>(x: &T, bytes: usize) {
     let _ = (x, bytes);
 }
 
+/// Hint the cache to fetch the first 64 bytes of element `i` of `items`, which may be past its
+/// end (then the hint is for some other address: still no fault, no read), without the bounds
+/// check that forming a reference to it would need.
+#[inline(always)]
+pub(crate) fn prefetch_at<T>(items: &[T], i: usize) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: as in `prefetch`; `wrapping_add` forms the address without claiming it is in
+    // bounds.
+    unsafe {
+        core::arch::x86_64::_mm_prefetch::<{ core::arch::x86_64::_MM_HINT_T0 }>(
+            items.as_ptr().wrapping_add(i).cast::<i8>(),
+        )
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = (items, i);
+}
+
 /// Bit `i` set when child `i` of `node` is a leaf (or unused: never entered), from the flag
 /// bits of the child codes, without a branch per lane.
 #[inline(always)]

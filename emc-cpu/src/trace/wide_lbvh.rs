@@ -22,7 +22,7 @@ use emc_core::Aabb;
 use glam::{Vec3, Vec3A};
 
 use crate::sort::RadixKey;
-use crate::trace::traverse::prefetch;
+use crate::trace::traverse::{prefetch, prefetch_at};
 use crate::trace::wide::{TriPacket, WideNodeN, EMPTY, LEAF, MAX_DEPTH, WIDTH};
 use crate::trace::TraceError;
 
@@ -121,8 +121,6 @@ pub struct BlockScratch {
     tris: Vec<[Vec3A; 3]>,
     /// Binary nodes (`2 · BLOCK − 1` slots, written by index).
     nodes: Vec<BNode>,
-    /// The sweep's open subtrees: (node, level of its right boundary).
-    stack: Vec<(u32, u32)>,
 }
 
 /// A finished block: its root as a child of a wide node.
@@ -287,22 +285,34 @@ macro_rules! block_builders {
             for (k, (t, &id)) in s.tris[..m].iter_mut().zip(ids).enumerate() {
                 let p = b as usize + k;
                 if let Some(&f) = all.get(p + GATHER_AHEAD) {
-                    prefetch(&inp.indices[f as usize], 12);
+                    prefetch_at(inp.indices, f as usize);
                 }
                 if let Some(&f) = all.get(p + GATHER_AHEAD / 2) {
-                    for &v in &inp.indices[f as usize] {
-                        prefetch(&inp.vertices[v as usize], 12);
+                    if let Some(c) = inp.indices.get(f as usize) {
+                        for &v in c {
+                            prefetch_at(inp.vertices, v as usize);
+                        }
                     }
                 }
                 *t = inp.indices[id as usize].map(|i| Vec3A::from(inp.vertices[i as usize]));
             }
             // The sweep: left to right, every primitive a leaf node; an open subtree on the stack
             // is merged with the current one while its right boundary's level is below the
-            // current one's.
-            s.stack.clear();
+            // current one's. The stack's levels strictly decrease upwards (two equal levels
+            // have a higher one between them, which would have popped the first), so it holds
+            // at most one entry per level (0..=95) above a sentinel of level `u32::MAX` that
+            // nothing pops. Fixed-size arrays indexed under a mask: no bounds checks, and no
+            // lengths reloaded from the scratch after each store.
+            const STACK: usize = 128;
+            const NODES: usize = 2 * BLOCK as usize;
+            let mut stack = [(0u32, u32::MAX); STACK];
+            let mut sp = 0usize;
+            let nodes: &mut [BNode; NODES] = (&mut s.nodes[..NODES]).try_into().expect("sized");
+            let tris: &[[Vec3A; 3]; BLOCK as usize] =
+                (&s.tris[..BLOCK as usize]).try_into().expect("sized");
             let mut next = 0usize;
             for p in 0..m {
-                let t = &s.tris[p];
+                let t = &tris[p & (BLOCK as usize - 1)];
                 let (lo, hi) = (t[0].min(t[1]).min(t[2]), t[0].max(t[1]).max(t[2]));
                 let area = half_area_a(lo, hi);
                 let mut cur = next as u32;
@@ -319,26 +329,29 @@ macro_rules! block_builders {
                     prio: 0,
                     kids_prio: [0; 2],
                 };
-                s.nodes[next] = node;
+                nodes[next & (NODES - 1)] = node;
                 next += 1;
                 let lvl = if p + 1 < m {
                     inp.level_at(b + p as u32)
                 } else {
-                    u32::MAX
+                    u32::MAX - 1
                 };
-                while let Some(&(top, tl)) = s.stack.last() {
+                loop {
+                    let (top, tl) = stack[sp & (STACK - 1)];
                     if tl >= lvl {
                         break;
                     }
-                    s.stack.pop();
-                    node = merge(&s.nodes[top as usize], &node, top, cur, inp.leaf_max);
-                    s.nodes[next] = node;
+                    sp -= 1;
+                    node = merge(&nodes[top as usize & (NODES - 1)], &node, top, cur, inp.leaf_max);
+                    nodes[next & (NODES - 1)] = node;
                     cur = next as u32;
                     next += 1;
                 }
-                s.stack.push((cur, lvl));
+                sp += 1;
+                debug_assert!(sp < STACK);
+                stack[sp & (STACK - 1)] = (cur, lvl);
             }
-            let root = s.stack[0].0;
+            let root = stack[1].0;
             let rn = s.nodes[root as usize];
             let bx = rn.aabb();
             if rn.is_leaf() {
