@@ -234,6 +234,69 @@ pub struct FastPhases {
     pub node_bytes: usize,
     /// Vertices of the mesh.
     pub vertices: usize,
+    /// On a pool of several threads: the same preset's cold builds there and on one thread,
+    /// alternating.
+    pub scaling: Option<Scaling>,
+}
+
+/// The fast path's cold builds on the run's pool and on a pool of one thread, alternating
+/// build by build in the same run: per-phase medians and the whole build's median wall ms.
+#[derive(Clone, Copy, Debug)]
+pub struct Scaling {
+    /// Threads of the run's pool.
+    pub threads: usize,
+    /// One thread: phases, whole build ms.
+    pub one: (FastTimes, f64),
+    /// The run's pool: phases, whole build ms.
+    pub many: (FastTimes, f64),
+}
+
+/// A parallel phase should run at least this many times its one-thread speed on two threads
+/// (issue 11's target for the fast preset).
+const PARALLEL_SPEEDUP_TARGET: f64 = 1.8;
+/// The serial part of the fast build should take at most this share of its one-thread time.
+const SERIAL_SHARE_TARGET: f64 = 0.10;
+
+/// [`BUILDS`] rounds (after one warm-up round) of a cold build of preset `p` on `ctx`'s pool,
+/// then one on a pool of one thread: each pool with its own [`BuildContext`], every `Accel`
+/// fresh and dropped before the next build of its pool, as in [`time_builds`].
+fn scaling(
+    p: Preset,
+    ctx: &Session,
+    vertices: &[Vec3],
+    indices: &[[u32; 3]],
+) -> anyhow::Result<Scaling> {
+    let one = rayon::ThreadPoolBuilder::new()
+        .num_threads(1)
+        .build()
+        .context("making a one-thread pool")?;
+    let opts = BuildOptions::preset(p);
+    let pools = [&ctx.pool, &one];
+    let mut bctx = [BuildContext::new(), BuildContext::new()];
+    let mut phases: [Vec<FastTimes>; 2] = Default::default();
+    let mut walls: [Vec<f64>; 2] = Default::default();
+    for round in 0..=BUILDS {
+        for k in 0..2 {
+            let c = &mut bctx[k];
+            let t0 = Instant::now();
+            let a = pools[k].install(|| Accel::build_in(c, vertices, indices, &opts))?;
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            if round > 0 {
+                phases[k].push(a.build_phases());
+                walls[k].push(ms);
+            }
+        }
+    }
+    let median = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let [mut wm, mut w1] = walls;
+    Ok(Scaling {
+        threads: ctx.threads,
+        one: (median_phases(&phases[1]), median(&mut w1)),
+        many: (median_phases(&phases[0]), median(&mut wm)),
+    })
 }
 
 /// Per-field medians of phase timings.
@@ -254,6 +317,7 @@ fn median_phases(v: &[FastTimes]) -> FastTimes {
         encode: m(|t| t.encode),
         sort: m(|t| t.sort),
         tree: m(|t| t.tree),
+        top: m(|t| t.top),
     }
 }
 
@@ -440,6 +504,11 @@ fn build<'a>(
                     Ok(t)
                 },
             )?;
+            let scaling = if a.build_phases().tree > 0.0 && ctx.threads > 1 {
+                Some(scaling(p, ctx, vertices, indices)?)
+            } else {
+                None
+            };
             let phases = (a.build_phases().tree > 0.0).then(|| {
                 let w = a.wide_bvh();
                 FastPhases {
@@ -449,6 +518,7 @@ fn build<'a>(
                     nodes: w.nodes.len() + w.nodes8.len(),
                     node_bytes: if w.nodes8.is_empty() { 128 } else { 256 },
                     vertices: vertices.len(),
+                    scaling,
                 }
             });
             Ok((
@@ -688,7 +758,8 @@ fn print_table(name: &str, ntris: usize, mode: CameraMode, rows: &[Row], args: &
 /// The issue's targets against the Embree row they name (same run): the fast preset against
 /// Embree LOW (cold ≤ 0.5×, warm ≤ 0.25×), quality and balanced against Embree MEDIUM (cold
 /// ≤ 1.0×); then the fast path's per-phase budget in ns per triangle beside the bytes per
-/// triangle each phase must at least move.
+/// triangle each phase must at least move, and on several threads its phases against one
+/// thread ([`Scaling`]).
 fn print_targets(rows: &[Row], ntris: usize) {
     let find = |name: &str| rows.iter().find(|r| r.config.name() == name);
     let (low, medium) = (find("embree LOW"), find("embree MEDIUM"));
@@ -778,6 +849,87 @@ fn print_targets(rows: &[Row], ntris: usize) {
         "(warm = rebuilds over the same vertices: the fast preset's sort keeps the last order and \
          sorts only changed codes, here none; a moving mesh changes them: see --frames)"
     );
+    if let Some(sc) = ph.scaling {
+        print_scaling(r.config.name(), &sc);
+    }
+}
+
+/// The fast path's phases on the run's pool against one thread (same run, alternating builds),
+/// and how they stand against the two-thread targets.
+fn print_scaling(name: &str, sc: &Scaling) {
+    for line in scaling_lines(name, sc) {
+        println!("{line}");
+    }
+}
+
+/// The lines of [`print_scaling`].
+fn scaling_lines(name: &str, sc: &Scaling) -> Vec<String> {
+    let ((one, one_ms), (many, many_ms)) = (sc.one, sc.many);
+    let rest = |t: &FastTimes, ms: f64| ms - (t.aabb + t.encode + t.sort + t.tree);
+    // (phase, one thread, the pool, runs in parallel)
+    let phases = [
+        ("aabb (checks, boxes, bounds)", one.aabb, many.aabb, true),
+        ("encode", one.encode, many.encode, true),
+        ("sort", one.sort, many.sort, true),
+        (
+            "tree: partition and blocks",
+            one.tree - one.top,
+            many.tree - many.top,
+            true,
+        ),
+        ("tree: top (serial)", one.top, many.top, false),
+        (
+            "rest (mesh copies, allocation)",
+            rest(&one, one_ms),
+            rest(&many, many_ms),
+            false,
+        ),
+    ];
+    let threads = sc.threads;
+    let speedup = |a: f64, b: f64| if b > 0.0 { a / b } else { f64::NAN };
+    let mut out = vec![
+        format!(
+            "{name} on {threads} threads against 1 thread (the same run, cold builds alternating \
+             between the two pools, medians of {BUILDS}; speedup = one-thread ms / {threads}-thread ms):"
+        ),
+        format!(
+            "{:<30} {:>11} {:>11} {:>8}",
+            "phase",
+            "1 thread ms",
+            format!("{threads} thr. ms"),
+            "speedup"
+        ),
+    ];
+    for &(p, a, b, _) in &phases {
+        out.push(format!(
+            "{p:<30} {a:>11.2} {b:>11.2} {:>7.2}×",
+            speedup(a, b)
+        ));
+    }
+    out.push(format!(
+        "{:<30} {one_ms:>11.2} {many_ms:>11.2} {:>7.2}×",
+        "whole build (Accel)",
+        speedup(one_ms, many_ms)
+    ));
+    let slow: Vec<String> = phases
+        .iter()
+        .filter(|&&(_, a, b, par)| par && speedup(a, b) < PARALLEL_SPEEDUP_TARGET)
+        .map(|&(p, a, b, _)| format!("{p} {:.3}×", speedup(a, b)))
+        .collect();
+    let share = |x: f64| 100.0 * x / one_ms;
+    out.push(format!(
+        "parallel phases under {PARALLEL_SPEEDUP_TARGET}× (target: none on 2 threads): {}; \
+         serial top {:.1}% of the one-thread build (target ≤ {:.0}%), rest {:.1}%",
+        if slow.is_empty() {
+            "none".to_string()
+        } else {
+            slow.join(", ")
+        },
+        share(one.top),
+        100.0 * SERIAL_SHARE_TARGET,
+        share(rest(&one, one_ms)),
+    ));
+    out
 }
 
 /// CSV header of `--csv`.
@@ -913,4 +1065,52 @@ pub fn run(args: &CompareArgs) -> anyhow::Result<()> {
         }
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The scaling report divides the one-thread figure by the pool's, names exactly the
+    /// parallel phases below the target, and gives the serial and remaining shares of the
+    /// one-thread build.
+    #[test]
+    fn scaling_lines_report_speedups_and_shares() {
+        let t = |aabb, encode, sort, tree, top| FastTimes {
+            aabb,
+            encode,
+            sort,
+            tree,
+            top,
+            ..FastTimes::default()
+        };
+        let sc = Scaling {
+            threads: 2,
+            one: (t(4.0, 4.0, 10.0, 20.0, 1.0), 40.0),
+            many: (t(2.0, 2.5, 5.0, 10.5, 1.0), 21.0),
+        };
+        let lines = scaling_lines("emc fast", &sc);
+        let row = |name: &str| {
+            lines
+                .iter()
+                .find(|l| l.starts_with(name))
+                .unwrap_or_else(|| panic!("no row {name}: {lines:#?}"))
+                .clone()
+        };
+        assert!(row("aabb").ends_with("2.00×"), "{lines:#?}");
+        assert!(row("encode").ends_with("1.60×"), "{lines:#?}");
+        // 19 ms of partition and blocks on one thread, 9.5 on two.
+        assert!(row("tree: partition and blocks").ends_with("2.00×"));
+        // The rest: 40 − 38 = 2 ms against 21 − 20 = 1 ms.
+        assert!(row("rest").contains("2.00") && row("rest").ends_with("2.00×"));
+        assert!(row("whole build").ends_with("1.90×"));
+        let last = lines.last().expect("lines");
+        assert!(last.contains("under 1.8×"), "{last}");
+        assert!(last.contains("encode 1.600×"), "{last}");
+        assert!(!last.contains("aabb") && !last.contains("sort ") && !last.contains("blocks"));
+        assert!(
+            last.contains("serial top 2.5%") && last.contains("rest 5.0%"),
+            "{last}"
+        );
+    }
 }

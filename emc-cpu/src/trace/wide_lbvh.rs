@@ -848,12 +848,12 @@ fn emit_top<const W: usize>(
 }
 
 /// Build the whole tree over `inp` (at least one primitive) into `out` (emptied first);
-/// returns its depth.
+/// returns its depth and the wall milliseconds of step 3 (the top, serial).
 pub fn build_tree<K: RadixKey, const W: usize>(
     inp: &Inputs<'_, K>,
     out: &mut Outputs<'_, W>,
     groups: &mut Vec<GroupOut<W>>,
-) -> Result<usize, TraceError> {
+) -> Result<(usize, f64), TraceError> {
     out.leaves = 0;
     let n = inp.keys.len() as u32;
     let mut ranges = Vec::with_capacity((n / BLOCK) as usize * 2 + 1);
@@ -873,7 +873,7 @@ pub fn build_tree<K: RadixKey, const W: usize>(
             node.set(0, &f.bx, f.code, inp.pad);
             out.nodes.push(node);
         }
-        return Ok(f.height.saturating_sub(1));
+        return Ok((f.height.saturating_sub(1), 0.0));
     }
     let blocks = if parallel {
         build_blocks_parallel(inp, &ranges, out, groups)
@@ -884,15 +884,17 @@ pub fn build_tree<K: RadixKey, const W: usize>(
         build_blocks(inp, &ranges, out, &mut blocks);
         blocks
     };
+    let t = std::time::Instant::now();
     let plan = TopPlan::<W>::new(&top, &blocks);
     let depth = emit_top(&top, &plan, &blocks, root, 0, 0, out.nodes, inp.pad);
+    let top_ms = t.elapsed().as_secs_f64() * 1e3;
     if depth > MAX_DEPTH {
         return Err(TraceError::TooDeep {
             depth,
             max: MAX_DEPTH,
         });
     }
-    Ok(depth)
+    Ok((depth, top_ms))
 }
 
 /// The output of one group of consecutive blocks, built on its own (node and packet indices
@@ -1131,6 +1133,8 @@ pub struct FastTimes {
     pub sort: f64,
     /// The top-down wide tree with its leaf packets.
     pub tree: f64,
+    /// Of `tree`, the top above the blocks (its cover and nodes: the one serial step).
+    pub top: f64,
 }
 
 /// The fast build: a `W`-wide tree over the mesh (`W` = 4 or 8) into `bvh`'s buffers, codes of
@@ -1317,8 +1321,9 @@ fn finish_tree<K: RadixKey, const W: usize>(
         leaves: 0,
         block,
     };
-    let depth = build_tree(inp, &mut out, groups)?;
+    let (depth, top) = build_tree(inp, &mut out, groups)?;
     times.tree = t3.elapsed().as_secs_f64() * 1e3;
+    times.top = top;
     Ok(FastTree {
         leaves: out.leaves,
         depth,
