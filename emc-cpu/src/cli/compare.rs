@@ -240,21 +240,49 @@ pub struct FastPhases {
 }
 
 /// The fast path's cold builds on the run's pool and on a pool of one thread, alternating
-/// build by build in the same run: per-phase medians and the whole build's median wall ms.
+/// build by build in the same run: for each row of [`SCALING_ROWS`], the median wall ms on one
+/// thread and on the pool (rows derived from several timings, such as the blocks or the rest,
+/// are computed per build, then their median taken).
 #[derive(Clone, Copy, Debug)]
 pub struct Scaling {
     /// Threads of the run's pool.
     pub threads: usize,
-    /// One thread: phases, whole build ms.
-    pub one: (FastTimes, f64),
-    /// The run's pool: phases, whole build ms.
-    pub many: (FastTimes, f64),
+    /// Triangles of the mesh (which steps of the tree phase run in parallel depends on it).
+    pub triangles: usize,
+    /// Per row: median ms on one thread, then on the pool.
+    pub ms: [[f64; 2]; SCALING_ROWS.len()],
+}
+
+/// The rows of [`Scaling`].
+pub const SCALING_ROWS: [&str; 8] = [
+    "aabb (checks, boxes, bounds)",
+    "encode",
+    "sort",
+    "tree: partition",
+    "tree: blocks",
+    "tree: top (serial)",
+    "rest (mesh copies, allocation)",
+    "whole build (Accel)",
+];
+
+/// The rows of [`SCALING_ROWS`] of one build: its phases and its whole wall ms.
+fn scaling_row(t: &FastTimes, wall: f64) -> [f64; SCALING_ROWS.len()] {
+    [
+        t.aabb,
+        t.encode,
+        t.sort,
+        t.partition,
+        t.tree - t.partition - t.top,
+        t.top,
+        wall - (t.aabb + t.encode + t.sort + t.tree),
+        wall,
+    ]
 }
 
 /// A parallel phase should run at least this many times its one-thread speed on two threads
 /// (issue 11's target for the fast preset).
 const PARALLEL_SPEEDUP_TARGET: f64 = 1.8;
-/// The serial part of the fast build should take at most this share of its one-thread time.
+/// The serial steps of the fast build should take at most this share of its one-thread time.
 const SERIAL_SHARE_TARGET: f64 = 0.10;
 
 /// [`BUILDS`] rounds (after one warm-up round) of a cold build of preset `p` on `ctx`'s pool,
@@ -271,31 +299,33 @@ fn scaling(
         .build()
         .context("making a one-thread pool")?;
     let opts = BuildOptions::preset(p);
-    let pools = [&ctx.pool, &one];
+    let pools = [&one, &ctx.pool];
     let mut bctx = [BuildContext::new(), BuildContext::new()];
-    let mut phases: [Vec<FastTimes>; 2] = Default::default();
-    let mut walls: [Vec<f64>; 2] = Default::default();
+    // rows[k][build][row]
+    let mut rows: [Vec<[f64; SCALING_ROWS.len()]>; 2] = Default::default();
     for round in 0..=BUILDS {
-        for k in 0..2 {
+        for k in [1, 0] {
             let c = &mut bctx[k];
             let t0 = Instant::now();
             let a = pools[k].install(|| Accel::build_in(c, vertices, indices, &opts))?;
             let ms = t0.elapsed().as_secs_f64() * 1e3;
             if round > 0 {
-                phases[k].push(a.build_phases());
-                walls[k].push(ms);
+                rows[k].push(scaling_row(&a.build_phases(), ms));
             }
         }
     }
-    let median = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let [mut wm, mut w1] = walls;
+    let mut ms = [[0.0; 2]; SCALING_ROWS.len()];
+    for (r, m) in ms.iter_mut().enumerate() {
+        for k in 0..2 {
+            let mut v: Vec<f64> = rows[k].iter().map(|b| b[r]).collect();
+            v.sort_by(f64::total_cmp);
+            m[k] = v[v.len() / 2];
+        }
+    }
     Ok(Scaling {
         threads: ctx.threads,
-        one: (median_phases(&phases[1]), median(&mut w1)),
-        many: (median_phases(&phases[0]), median(&mut wm)),
+        triangles: indices.len(),
+        ms,
     })
 }
 
@@ -317,6 +347,7 @@ fn median_phases(v: &[FastTimes]) -> FastTimes {
         encode: m(|t| t.encode),
         sort: m(|t| t.sort),
         tree: m(|t| t.tree),
+        partition: m(|t| t.partition),
         top: m(|t| t.top),
     }
 }
@@ -862,72 +893,82 @@ fn print_scaling(name: &str, sc: &Scaling) {
     }
 }
 
-/// The lines of [`print_scaling`].
+/// The lines of [`print_scaling`]. Which rows run in parallel: the boxes, codes and sort
+/// always; the partition when the mesh has more than
+/// [`crate::trace::wide_lbvh::PARTITION_PAR_MIN`] triangles (its top halves), the blocks when
+/// there are several; the top never (rows not in parallel count as serial). The rest
+/// (copies, allocation) is shown, not judged.
 fn scaling_lines(name: &str, sc: &Scaling) -> Vec<String> {
-    let ((one, one_ms), (many, many_ms)) = (sc.one, sc.many);
-    let rest = |t: &FastTimes, ms: f64| ms - (t.aabb + t.encode + t.sort + t.tree);
-    // (phase, one thread, the pool, runs in parallel)
-    let phases = [
-        ("aabb (checks, boxes, bounds)", one.aabb, many.aabb, true),
-        ("encode", one.encode, many.encode, true),
-        ("sort", one.sort, many.sort, true),
-        (
-            "tree: partition and blocks",
-            one.tree - one.top,
-            many.tree - many.top,
-            true,
-        ),
-        ("tree: top (serial)", one.top, many.top, false),
-        (
-            "rest (mesh copies, allocation)",
-            rest(&one, one_ms),
-            rest(&many, many_ms),
-            false,
-        ),
+    use crate::trace::wide_lbvh::{BLOCK, PARTITION_PAR_MIN};
+    let n = sc.triangles;
+    let parallel = [
+        Some(true),
+        Some(true),
+        Some(true),
+        Some(n > PARTITION_PAR_MIN as usize),
+        Some(n > BLOCK as usize),
+        Some(false),
+        None,
+        None,
     ];
     let threads = sc.threads;
-    let speedup = |a: f64, b: f64| if b > 0.0 { a / b } else { f64::NAN };
+    // One-thread ms over the pool's; undefined when either is not positive.
+    let speedup = |[a, b]: [f64; 2]| (a > 0.0 && b > 0.0).then(|| a / b);
     let mut out = vec![
         format!(
-            "{name} on {threads} threads against 1 thread (the same run, cold builds alternating \
-             between the two pools, medians of {BUILDS}; speedup = one-thread ms / {threads}-thread ms):"
+            "{name} on {threads} threads against 1 thread (the same run, cold builds \
+             alternating between the two pools, medians of {BUILDS}; speedup = one-thread ms \
+             / {threads}-thread ms):"
         ),
         format!(
-            "{:<30} {:>11} {:>11} {:>8}",
+            "{:<30} {:>11} {:>11} {:>8}  runs",
             "phase",
             "1 thread ms",
             format!("{threads} thr. ms"),
             "speedup"
         ),
     ];
-    for &(p, a, b, _) in &phases {
+    for (r, &label) in SCALING_ROWS.iter().enumerate() {
+        let [a, b] = sc.ms[r];
+        let how = match parallel[r] {
+            Some(true) => "in parallel",
+            Some(false) => "serially",
+            None => "",
+        };
         out.push(format!(
-            "{p:<30} {a:>11.2} {b:>11.2} {:>7.2}×",
-            speedup(a, b)
+            "{label:<30} {a:>11.2} {b:>11.2} {:>8}  {how}",
+            speedup(sc.ms[r]).map_or("—".to_string(), |x| format!("{x:.2}×"))
         ));
     }
-    out.push(format!(
-        "{:<30} {one_ms:>11.2} {many_ms:>11.2} {:>7.2}×",
-        "whole build (Accel)",
-        speedup(one_ms, many_ms)
-    ));
-    let slow: Vec<String> = phases
-        .iter()
-        .filter(|&&(_, a, b, par)| par && speedup(a, b) < PARALLEL_SPEEDUP_TARGET)
-        .map(|&(p, a, b, _)| format!("{p} {:.3}×", speedup(a, b)))
+    let slow: Vec<String> = (0..SCALING_ROWS.len())
+        .filter(|&r| parallel[r] == Some(true))
+        .filter_map(|r| {
+            let x = speedup(sc.ms[r])?;
+            (x < PARALLEL_SPEEDUP_TARGET).then(|| format!("{} {x:.3}×", SCALING_ROWS[r]))
+        })
         .collect();
+    let one_ms = sc.ms[SCALING_ROWS.len() - 1][0];
+    let serial: f64 = (0..SCALING_ROWS.len())
+        .filter(|&r| parallel[r] == Some(false))
+        .map(|r| sc.ms[r][0])
+        .sum();
     let share = |x: f64| 100.0 * x / one_ms;
     out.push(format!(
-        "parallel phases under {PARALLEL_SPEEDUP_TARGET}× (target: none on 2 threads): {}; \
-         serial top {:.1}% of the one-thread build (target ≤ {:.0}%), rest {:.1}%",
+        "parallel phases under {PARALLEL_SPEEDUP_TARGET}× ({}): {}; the serial steps {:.1}% of \
+         the one-thread build (target ≤ {:.0}%), the rest {:.1}%",
+        if threads == 2 {
+            "target: none"
+        } else {
+            "the target is set for 2 threads"
+        },
         if slow.is_empty() {
             "none".to_string()
         } else {
             slow.join(", ")
         },
-        share(one.top),
+        share(serial),
         100.0 * SERIAL_SHARE_TARGET,
-        share(rest(&one, one_ms)),
+        share(sc.ms[SCALING_ROWS.len() - 2][0]),
     ));
     out
 }
@@ -1071,46 +1112,82 @@ pub fn run(args: &CompareArgs) -> anyhow::Result<()> {
 mod tests {
     use super::*;
 
-    /// The scaling report divides the one-thread figure by the pool's, names exactly the
-    /// parallel phases below the target, and gives the serial and remaining shares of the
-    /// one-thread build.
+    /// The scaling report divides the one-thread figure by the pool's, derives the blocks and
+    /// the rest per build, names exactly the parallel phases below the target, counts the top
+    /// (and a partition without parallel halves) as serial, and shows an undefined speed-up
+    /// as a dash.
     #[test]
     fn scaling_lines_report_speedups_and_shares() {
-        let t = |aabb, encode, sort, tree, top| FastTimes {
+        let t = |aabb, encode, sort, tree, partition, top| FastTimes {
             aabb,
             encode,
             sort,
             tree,
+            partition,
             top,
             ..FastTimes::default()
         };
-        let sc = Scaling {
-            threads: 2,
-            one: (t(4.0, 4.0, 10.0, 20.0, 1.0), 40.0),
-            many: (t(2.0, 2.5, 5.0, 10.5, 1.0), 21.0),
+        let one = scaling_row(&t(4.0, 4.0, 10.0, 20.0, 2.0, 1.0), 40.0);
+        let many = scaling_row(&t(2.0, 2.5, 5.0, 10.5, 1.0, 1.0), 21.0);
+        let report = |triangles: usize| {
+            let sc = Scaling {
+                threads: 2,
+                triangles,
+                ms: core::array::from_fn(|r| [one[r], many[r]]),
+            };
+            scaling_lines("emc fast", &sc)
         };
-        let lines = scaling_lines("emc fast", &sc);
-        let row = |name: &str| {
+        let lines = report(1 << 20);
+        let row = |lines: &[String], name: &str| {
             lines
                 .iter()
                 .find(|l| l.starts_with(name))
                 .unwrap_or_else(|| panic!("no row {name}: {lines:#?}"))
                 .clone()
         };
-        assert!(row("aabb").ends_with("2.00×"), "{lines:#?}");
-        assert!(row("encode").ends_with("1.60×"), "{lines:#?}");
-        // 19 ms of partition and blocks on one thread, 9.5 on two.
-        assert!(row("tree: partition and blocks").ends_with("2.00×"));
+        let r = |name: &str| row(&lines, name);
+        assert!(r("aabb").contains(" 4.00 ") && r("aabb").contains(" 2.00 "));
+        assert!(r("aabb").contains("2.00×"), "{lines:#?}");
+        assert!(r("encode").contains("1.60×"), "{lines:#?}");
+        // Blocks: 20 − 2 − 1 = 17 ms on one thread, 10.5 − 1 − 1 = 8.5 on two.
+        assert!(r("tree: blocks").contains(" 17.00 ") && r("tree: blocks").contains("2.00×"));
         // The rest: 40 − 38 = 2 ms against 21 − 20 = 1 ms.
-        assert!(row("rest").contains("2.00") && row("rest").ends_with("2.00×"));
-        assert!(row("whole build").ends_with("1.90×"));
+        assert!(r("rest").contains(" 2.00 ") && r("rest").contains(" 1.00 "));
+        assert!(r("whole build").contains("1.90×"));
         let last = lines.last().expect("lines");
-        assert!(last.contains("under 1.8×"), "{last}");
+        assert!(last.contains("target: none"), "{last}");
         assert!(last.contains("encode 1.600×"), "{last}");
-        assert!(!last.contains("aabb") && !last.contains("sort ") && !last.contains("blocks"));
+        for fast_or_serial in ["aabb", "sort ", "blocks", "partition", "top"] {
+            assert!(!last.contains(fast_or_serial), "{fast_or_serial}: {last}");
+        }
         assert!(
-            last.contains("serial top 2.5%") && last.contains("rest 5.0%"),
+            last.contains("serial steps 2.5%") && last.contains("rest 5.0%"),
             "{last}"
         );
+        // A mesh of one block: its partition and its block run serially (2 + 17 + 1 of 40 ms
+        // with the top), and a top of 0 ms has no speed-up.
+        let small = report(1000);
+        assert!(
+            small.last().unwrap().contains("serial steps 50.0%"),
+            "{small:#?}"
+        );
+        assert!(row(&small, "tree: partition").ends_with("serially"));
+        assert!(row(&small, "tree: blocks").ends_with("serially"));
+        // Over one block but too small for parallel halves: only the partition is serial.
+        let mid = report(100_000);
+        assert!(
+            mid.last().unwrap().contains("serial steps 7.5%"),
+            "{mid:#?}"
+        );
+        let mut zero = many;
+        zero[5] = 0.0;
+        let sc = Scaling {
+            threads: 4,
+            triangles: 1000,
+            ms: core::array::from_fn(|r| [one[r], zero[r]]),
+        };
+        let lines = scaling_lines("emc fast", &sc);
+        assert!(row(&lines, "tree: top").contains("—"), "{lines:#?}");
+        assert!(lines.last().unwrap().contains("set for 2 threads"));
     }
 }

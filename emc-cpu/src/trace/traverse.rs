@@ -1807,9 +1807,9 @@ pub(crate) fn prefetch<T>(x: &T, bytes: usize) {
     let _ = (x, bytes);
 }
 
-/// Hint the cache to fetch the first 64 bytes of element `i` of `items`, which may be past its
-/// end (then the hint is for some other address: still no fault, no read), without the bounds
-/// check that forming a reference to it would need.
+/// Hint the cache to fetch the line holding the start of element `i` of `items`, which may be
+/// past its end (then the hint is for some other address: still no fault, no read), without
+/// the bounds check that forming a reference to it would need.
 #[inline(always)]
 pub(crate) fn prefetch_at<T>(items: &[T], i: usize) {
     #[cfg(target_arch = "x86_64")]

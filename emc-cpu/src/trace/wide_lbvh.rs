@@ -28,6 +28,8 @@ use crate::trace::TraceError;
 
 /// Ranges of at most this many primitives are built as one block, in the core's cache.
 pub const BLOCK: u32 = 1024;
+// The sweep indexes its fixed-size arrays under masks of `BLOCK` and `2 · BLOCK`.
+const _: () = assert!(BLOCK.is_power_of_two());
 
 /// How far ahead of the block's gather its index loads are prefetched (its corner loads half
 /// as far): a one-thread warm fast build of stanford-dragon gathers in 5.6 ms at 128 against
@@ -199,7 +201,7 @@ impl<K: RadixKey> Inputs<'_, K> {
 /// Ranges of more primitives than this have their two halves partitioned as parallel tasks
 /// (when the pool has several threads): the binary searches of the top levels miss the cache
 /// at nearly every step (san-miguel-pbrtv3: 12.6 ms on one thread).
-const PARTITION_PAR_MIN: u32 = 1 << 17;
+pub const PARTITION_PAR_MIN: u32 = 1 << 17;
 
 /// Step 1: split `[b, e)` down to blocks (appended to `blocks` in order), recording the top
 /// nodes (post-order); returns the reference of `[b, e)`. The same lists at any thread count.
@@ -300,11 +302,12 @@ macro_rules! block_builders {
             // is merged with the current one while its right boundary's level is below the
             // current one's. The stack's levels strictly decrease upwards (two equal levels
             // have a higher one between them, which would have popped the first), so it holds
-            // at most one entry per level (0..=95) above a sentinel of level `u32::MAX` that
-            // nothing pops. Fixed-size arrays indexed under a mask: no bounds checks, and no
+            // at most one entry per level (0..=95, and the last primitive's `u32::MAX − 1`)
+            // above a sentinel of level `u32::MAX` that nothing pops. Fixed-size arrays indexed under a mask: no bounds checks, and no
             // lengths reloaded from the scratch after each store.
             const STACK: usize = 128;
             const NODES: usize = 2 * BLOCK as usize;
+            const _: () = assert!(STACK.is_power_of_two() && STACK > 97);
             let mut stack = [(0u32, u32::MAX); STACK];
             let mut sp = 0usize;
             let nodes: &mut [BNode; NODES] = (&mut s.nodes[..NODES]).try_into().expect("sized");
@@ -848,17 +851,20 @@ fn emit_top<const W: usize>(
 }
 
 /// Build the whole tree over `inp` (at least one primitive) into `out` (emptied first);
-/// returns its depth and the wall milliseconds of step 3 (the top, serial).
+/// returns its depth and the wall milliseconds of step 1 (the partition) and of step 3 (the
+/// top above the blocks; 0 when the mesh is one block).
 pub fn build_tree<K: RadixKey, const W: usize>(
     inp: &Inputs<'_, K>,
     out: &mut Outputs<'_, W>,
     groups: &mut Vec<GroupOut<W>>,
-) -> Result<(usize, f64), TraceError> {
+) -> Result<(usize, [f64; 2]), TraceError> {
     out.leaves = 0;
     let n = inp.keys.len() as u32;
     let mut ranges = Vec::with_capacity((n / BLOCK) as usize * 2 + 1);
     let mut top = Vec::with_capacity(ranges.capacity());
+    let t = std::time::Instant::now();
     let root = partition(inp, 0, n, &mut ranges, &mut top);
+    let partition_ms = t.elapsed().as_secs_f64() * 1e3;
     let parallel = rayon::current_num_threads() > 1 && ranges.len() > 1;
     // Built by appending (in parallel: the front groups appended, the back ones copied after).
     out.nodes.clear();
@@ -873,7 +879,7 @@ pub fn build_tree<K: RadixKey, const W: usize>(
             node.set(0, &f.bx, f.code, inp.pad);
             out.nodes.push(node);
         }
-        return Ok((f.height.saturating_sub(1), 0.0));
+        return Ok((f.height.saturating_sub(1), [partition_ms, 0.0]));
     }
     let blocks = if parallel {
         build_blocks_parallel(inp, &ranges, out, groups)
@@ -894,7 +900,7 @@ pub fn build_tree<K: RadixKey, const W: usize>(
             max: MAX_DEPTH,
         });
     }
-    Ok((depth, top_ms))
+    Ok((depth, [partition_ms, top_ms]))
 }
 
 /// The output of one group of consecutive blocks, built on its own (node and packet indices
@@ -1133,7 +1139,11 @@ pub struct FastTimes {
     pub sort: f64,
     /// The top-down wide tree with its leaf packets.
     pub tree: f64,
-    /// Of `tree`, the top above the blocks (its cover and nodes: the one serial step).
+    /// Of `tree`, the partition of the sorted codes into blocks (serial, but for the halves
+    /// of ranges over [`PARTITION_PAR_MIN`] primitives, which run as parallel tasks).
+    pub partition: f64,
+    /// Of `tree`, the top above the blocks (its cover and nodes; serial, 0 when the mesh is
+    /// one block).
     pub top: f64,
 }
 
@@ -1321,8 +1331,9 @@ fn finish_tree<K: RadixKey, const W: usize>(
         leaves: 0,
         block,
     };
-    let (depth, top) = build_tree(inp, &mut out, groups)?;
+    let (depth, [partition, top]) = build_tree(inp, &mut out, groups)?;
     times.tree = t3.elapsed().as_secs_f64() * 1e3;
+    times.partition = partition;
     times.top = top;
     Ok(FastTree {
         leaves: out.leaves,
