@@ -131,15 +131,17 @@ pub fn parse_presets(s: &str) -> anyhow::Result<Vec<Preset>> {
 
 /// Median of durations in milliseconds (mean of the middle two for an even count).
 fn median_ms(v: &[Duration]) -> f64 {
-    let mut ms: Vec<f64> = v.iter().map(|d| d.as_secs_f64() * 1e3).collect();
-    ms.sort_by(f64::total_cmp);
-    let n = ms.len();
-    if n == 0 {
-        f64::NAN
-    } else if n % 2 == 1 {
-        ms[n / 2]
-    } else {
-        0.5 * (ms[n / 2 - 1] + ms[n / 2])
+    median(v.iter().map(|d| d.as_secs_f64() * 1e3).collect()).unwrap_or(f64::NAN)
+}
+
+/// The median of `x` (the mean of the middle two for an even count); `None` when empty.
+fn median(mut x: Vec<f64>) -> Option<f64> {
+    x.sort_by(f64::total_cmp);
+    let n = x.len();
+    match n {
+        0 => None,
+        _ if n % 2 == 1 => Some(x[n / 2]),
+        _ => Some(0.5 * (x[n / 2 - 1] + x[n / 2])),
     }
 }
 
@@ -314,32 +316,19 @@ fn scaling(
             }
         }
     }
-    let mut ms = [[0.0; 2]; SCALING_ROWS.len()];
-    for (r, m) in ms.iter_mut().enumerate() {
-        for k in 0..2 {
-            let mut v: Vec<f64> = rows[k].iter().map(|b| b[r]).collect();
-            v.sort_by(f64::total_cmp);
-            m[k] = v[v.len() / 2];
-        }
-    }
     Ok(Scaling {
         threads: ctx.threads,
         triangles: indices.len(),
-        ms,
+        ms: core::array::from_fn(|r| {
+            rows.each_ref()
+                .map(|b| median(b.iter().map(|row| row[r]).collect()).unwrap_or(f64::NAN))
+        }),
     })
 }
 
 /// Per-field medians of phase timings.
 fn median_phases(v: &[FastTimes]) -> FastTimes {
-    let m = |f: fn(&FastTimes) -> f64| {
-        let mut x: Vec<f64> = v.iter().map(f).collect();
-        x.sort_by(f64::total_cmp);
-        if x.is_empty() {
-            0.0
-        } else {
-            x[x.len() / 2]
-        }
-    };
+    let m = |f: fn(&FastTimes) -> f64| median(v.iter().map(f).collect()).unwrap_or(0.0);
     FastTimes {
         aabb: m(|t| t.aabb),
         choose: m(|t| t.choose),
@@ -535,12 +524,14 @@ fn build<'a>(
                     Ok(t)
                 },
             )?;
-            let scaling = if a.build_phases().tree > 0.0 && ctx.threads > 1 {
+            // Only the fast path times a tree phase.
+            let fast = a.build_phases().tree > 0.0;
+            let scaling = if fast && ctx.threads > 1 {
                 Some(scaling(p, ctx, vertices, indices)?)
             } else {
                 None
             };
-            let phases = (a.build_phases().tree > 0.0).then(|| {
+            let phases = fast.then(|| {
                 let w = a.wide_bvh();
                 FastPhases {
                     cold: median_phases(&pc[1..]),

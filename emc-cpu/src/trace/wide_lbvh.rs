@@ -303,8 +303,9 @@ macro_rules! block_builders {
             // current one's. The stack's levels strictly decrease upwards (two equal levels
             // have a higher one between them, which would have popped the first), so it holds
             // at most one entry per level (0..=95, and the last primitive's `u32::MAX − 1`)
-            // above a sentinel of level `u32::MAX` that nothing pops. Fixed-size arrays indexed under a mask: no bounds checks, and no
-            // lengths reloaded from the scratch after each store.
+            // above a sentinel of level `u32::MAX` that nothing pops. Fixed-size arrays
+            // indexed under a mask: no bounds checks, and no lengths reloaded from the scratch
+            // after each store.
             const STACK: usize = 128;
             const NODES: usize = 2 * BLOCK as usize;
             const _: () = assert!(STACK.is_power_of_two() && STACK > 97);
@@ -851,20 +852,22 @@ fn emit_top<const W: usize>(
 }
 
 /// Build the whole tree over `inp` (at least one primitive) into `out` (emptied first);
-/// returns its depth and the wall milliseconds of step 1 (the partition) and of step 3 (the
-/// top above the blocks; 0 when the mesh is one block).
+/// returns its depth. Writes the wall ms of step 1 and of step 3 into `times.partition` and
+/// `times.top` (0 when the mesh is one block).
 pub fn build_tree<K: RadixKey, const W: usize>(
     inp: &Inputs<'_, K>,
     out: &mut Outputs<'_, W>,
     groups: &mut Vec<GroupOut<W>>,
-) -> Result<(usize, [f64; 2]), TraceError> {
+    times: &mut FastTimes,
+) -> Result<usize, TraceError> {
     out.leaves = 0;
     let n = inp.keys.len() as u32;
     let mut ranges = Vec::with_capacity((n / BLOCK) as usize * 2 + 1);
     let mut top = Vec::with_capacity(ranges.capacity());
     let t = std::time::Instant::now();
     let root = partition(inp, 0, n, &mut ranges, &mut top);
-    let partition_ms = t.elapsed().as_secs_f64() * 1e3;
+    times.partition = t.elapsed().as_secs_f64() * 1e3;
+    times.top = 0.0;
     let parallel = rayon::current_num_threads() > 1 && ranges.len() > 1;
     // Built by appending (in parallel: the front groups appended, the back ones copied after).
     out.nodes.clear();
@@ -879,7 +882,7 @@ pub fn build_tree<K: RadixKey, const W: usize>(
             node.set(0, &f.bx, f.code, inp.pad);
             out.nodes.push(node);
         }
-        return Ok((f.height.saturating_sub(1), [partition_ms, 0.0]));
+        return Ok(f.height.saturating_sub(1));
     }
     let blocks = if parallel {
         build_blocks_parallel(inp, &ranges, out, groups)
@@ -893,14 +896,14 @@ pub fn build_tree<K: RadixKey, const W: usize>(
     let t = std::time::Instant::now();
     let plan = TopPlan::<W>::new(&top, &blocks);
     let depth = emit_top(&top, &plan, &blocks, root, 0, 0, out.nodes, inp.pad);
-    let top_ms = t.elapsed().as_secs_f64() * 1e3;
+    times.top = t.elapsed().as_secs_f64() * 1e3;
     if depth > MAX_DEPTH {
         return Err(TraceError::TooDeep {
             depth,
             max: MAX_DEPTH,
         });
     }
-    Ok((depth, [partition_ms, top_ms]))
+    Ok(depth)
 }
 
 /// The output of one group of consecutive blocks, built on its own (node and packet indices
@@ -1331,10 +1334,8 @@ fn finish_tree<K: RadixKey, const W: usize>(
         leaves: 0,
         block,
     };
-    let (depth, [partition, top]) = build_tree(inp, &mut out, groups)?;
+    let depth = build_tree(inp, &mut out, groups, times)?;
     times.tree = t3.elapsed().as_secs_f64() * 1e3;
-    times.partition = partition;
-    times.top = top;
     Ok(FastTree {
         leaves: out.leaves,
         depth,
